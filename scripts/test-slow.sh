@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Runs the test cases tagged [.slow] (hidden from the default suite) in every test executable.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/install-deps.sh
+bash scripts/build.sh
+status=0
+for t in "${DIFFPHD_BUILD_DIR:-build}"/tests/test_*; do
+  [[ -x "$t" ]] || continue
+  if "$t" --list-test-names-only "[.slow]" | grep -q .; then
+    echo "== $(basename "$t") [.slow]"
+    "$t" "[.slow]" || status=1
+  fi
+done
+exit $status

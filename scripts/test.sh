@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# The test command: installs the dependencies, builds everything, and runs the fast test suite
+# with CTest (the last line is CTest's summary). Slow tests: scripts/test-slow.sh.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/install-deps.sh
+bash scripts/build.sh
+cd "${DIFFPHD_BUILD_DIR:-build}"
+ctest --output-on-failure -j "${DIFFPHD_JOBS:-$(nproc)}"
