@@ -1,0 +1,218 @@
+// Tests of include/diffphd/linalg/{ordering,sparse_factor}.hpp: METIS nested dissection,
+// CHOLMOD supernodal LL^T and Eigen SimplicialLDLT behind SparseFactor.
+#include <catch2/catch.hpp>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <vector>
+
+#include <Eigen/Dense>
+
+#include <diffphd/core/material.hpp>
+#include <diffphd/core/mesh.hpp>
+#include <diffphd/linalg/ordering.hpp>
+#include <diffphd/linalg/pd_matrix.hpp>
+#include <diffphd/linalg/sparse_factor.hpp>
+
+// ---- local structured-grid mesh (Kuhn split), independent of io/generators.hpp -------------
+namespace {
+
+/// Grid of n^Dim cells on [0, size]^Dim, cut into Dim! simplices per cell (Kuhn split: one
+/// simplex per axis order, walking from the cell's low corner to its high corner).
+template <int Dim>
+diffphd::SimplicialMesh<Dim> grid_mesh(int n, double size = 1.0) {
+  const int m = n + 1;
+  const int nv = Dim == 2 ? m * m : m * m * m;
+  diffphd::VertexMatrix<Dim> X(nv, Dim);
+  auto vid = [&](const std::array<int, 3>& c) {
+    return Dim == 2 ? c[0] + m * c[1] : c[0] + m * (c[1] + m * c[2]);
+  };
+  for (int v = 0; v < nv; ++v) {
+    int r = v;
+    for (int a = 0; a < Dim; ++a, r /= m) X(v, a) = size * (r % m) / n;
+  }
+  std::vector<std::array<int, Dim + 1>> tets;
+  const int ncell = Dim == 2 ? n * n : n * n * n;
+  std::array<int, Dim> order;
+  for (int cell = 0; cell < ncell; ++cell) {
+    std::array<int, 3> base{0, 0, 0};
+    int r = cell;
+    for (int a = 0; a < Dim; ++a, r /= n) base[a] = r % n;
+    for (int a = 0; a < Dim; ++a) order[a] = a;
+    do {
+      std::array<int, Dim + 1> t;
+      std::array<int, 3> c = base;
+      t[0] = vid(c);
+      for (int s = 0; s < Dim; ++s) {
+        ++c[order[s]];
+        t[s + 1] = vid(c);
+      }
+      diffphd::Mat<Dim> D;
+      for (int s = 0; s < Dim; ++s) D.col(s) = (X.row(t[s + 1]) - X.row(t[0])).transpose();
+      if (D.determinant() < 0) std::swap(t[1], t[2]);
+      tets.push_back(t);
+    } while (std::next_permutation(order.begin(), order.end()));
+  }
+  diffphd::ElementMatrix<Dim> T(static_cast<int>(tets.size()), Dim + 1);
+  for (size_t e = 0; e < tets.size(); ++e)
+    for (int a = 0; a <= Dim; ++a) T(static_cast<int>(e), a) = tets[e][a];
+  return diffphd::SimplicialMesh<Dim>(X, T);
+}
+
+/// Two materials: E = E_soft for centroids with x < 0.5 size, E_soft * contrast elsewhere.
+template <int Dim>
+diffphd::MaterialField two_materials(const diffphd::SimplicialMesh<Dim>& mesh, double contrast,
+                                     double E_soft = 1e4, double nu = 0.3) {
+  diffphd::Material soft{E_soft, nu, 1000.0, 0};
+  diffphd::Material stiff{E_soft * contrast, nu, 1200.0, 1};
+  diffphd::MaterialField f(mesh.num_elements(), soft);
+  const double xmax = mesh.bounding_box().max()[0];
+  f.assign_slab(mesh, 0, 0.5 * xmax, 2.0 * xmax, stiff);
+  return f;
+}
+
+}  // namespace
+// ---------------------------------------------------------------------------------------------
+
+using namespace diffphd;
+
+namespace {
+template <int Dim>
+SparseMatrix pd_matrix(int n, double contrast) {
+  const auto mesh = grid_mesh<Dim>(n);
+  PDMatrixParams p;
+  p.h = 1e-2;
+  p.beta0 = 1e-3;
+  return assemble_pd_matrix(mesh, two_materials(mesh, contrast), p);
+}
+
+/// nnz of the LDL^T factor of A(perm, perm) with no further reordering.
+long long fill_with(const SparseMatrix& A, const Eigen::VectorXi& perm_new_to_old) {
+  Eigen::PermutationMatrix<Eigen::Dynamic, Eigen::Dynamic, int> P(perm_new_to_old);
+  // Eigen: (P^T A P)(i, j) = A(perm[i], perm[j]) for P.indices() = perm.
+  SparseMatrix B = P.transpose() * A * P;
+  Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower, Eigen::NaturalOrdering<int>> ldlt;
+  ldlt.analyzePattern(B);
+  return ldlt.matrixL().nestedExpression().nonZeros();
+}
+}  // namespace
+
+TEST_CASE("METIS nested dissection: a valid permutation with perm[new] = old",
+          "[linalg][ordering]") {
+  const SparseMatrix A = pd_matrix<2>(24, 1.0);
+  const Ordering ord = metis_nested_dissection_ordering(A);
+  const int n = static_cast<int>(A.rows());
+  REQUIRE(ord.perm.size() == n);
+  std::vector<int> seen(n, 0);
+  for (int i = 0; i < n; ++i) {
+    ++seen[ord.perm[i]];
+    CHECK(ord.iperm[ord.perm[i]] == i);
+  }
+  CHECK(std::all_of(seen.begin(), seen.end(), [](int c) { return c == 1; }));
+  CHECK(metis_nested_dissection(A) == ord.perm);
+  // Direction: read as new -> old, the METIS order fills less than read the other way round
+  // and less than the natural (banded) order on a 25 x 25 grid.
+  const long long nd = fill_with(A, ord.perm);
+  const long long inverse_read = fill_with(A, ord.iperm);
+  const long long natural = fill_with(A, Eigen::VectorXi::LinSpaced(n, 0, n - 1));
+  CHECK(nd < inverse_read);
+  CHECK(nd < natural);
+  CHECK_THROWS_AS(metis_nested_dissection(SparseMatrix(3, 4)), InputError);
+}
+
+TEMPLATE_TEST_CASE_SIG("CHOLMOD and Eigen LDL^T agree with a dense solve", "[linalg][factor]",
+                       ((int Dim), Dim), 2, 3) {
+  const double contrast = GENERATE(1.0, 1e4);
+  const SparseMatrix A = pd_matrix<Dim>(Dim == 2 ? 12 : 5, contrast);
+  const int n = static_cast<int>(A.rows());
+  const MatrixX B = MatrixX::Random(n, 3);
+  const MatrixX ref = MatrixX(A).llt().solve(B);
+  for (FactorBackend backend : {FactorBackend::Cholmod, FactorBackend::EigenLDLT}) {
+    INFO("backend " << to_string(backend) << ", contrast " << contrast);
+    SparseFactor f(backend);
+    f.compute(A);
+    REQUIRE(f.info() == FactorStatus::Success);
+    const MatrixX X = f.solve(B);
+    CHECK((X - ref).norm() <= 1e-10 * ref.norm());
+    CHECK(f.factorization_count() == 1);
+    CHECK(f.nnz_L() >= n);
+    CHECK(f.analyze_seconds() >= 0);
+    CHECK(f.factor_seconds() >= 0);
+
+    // P A P^T = L D L^T with the reported permutation.
+    const ExplicitFactor ef = f.explicit_factor();
+    REQUIRE(ef.L.rows() == n);
+    const MatrixX L(ef.L);
+    CHECK(L.isLowerTriangular());
+    Eigen::PermutationMatrix<Eigen::Dynamic, Eigen::Dynamic, int> P(ef.perm);
+    const MatrixX PAPt = P.transpose() * MatrixX(A) * P;  // (i, j) -> A(perm[i], perm[j])
+    const MatrixX LDLt = L * ef.D.asDiagonal() * L.transpose();
+    CHECK((PAPt - LDLt).norm() <= 1e-12 * PAPt.norm());
+    CHECK(ef.perm == f.permutation());
+    CHECK(ef.D.minCoeff() > 0);
+    if (backend == FactorBackend::Cholmod) CHECK(ef.D == VectorX::Ones(n));
+    if (backend == FactorBackend::EigenLDLT) CHECK(L.diagonal() == VectorX::Ones(n));
+  }
+}
+
+TEST_CASE("SparseFactor lifecycle: analyze once, refactor on new values", "[linalg][factor]") {
+  const SparseMatrix A = pd_matrix<3>(4, 1e3);
+  const int n = static_cast<int>(A.rows());
+  for (FactorBackend backend : {FactorBackend::Cholmod, FactorBackend::EigenLDLT}) {
+    INFO("backend " << to_string(backend));
+    SparseFactor f(backend);
+    CHECK(f.info() == FactorStatus::InvalidInput);  // nothing yet
+    CHECK_THROWS_AS(f.solve(MatrixX::Ones(n, 1)), std::logic_error);
+    f.analyze_pattern(A);
+    REQUIRE(f.info() == FactorStatus::Success);
+    CHECK(f.factorization_count() == 0);
+    f.factorize(A);
+    REQUIRE(f.info() == FactorStatus::Success);
+    const SparseMatrix A2 = 3.0 * A;
+    f.factorize(A2);
+    REQUIRE(f.info() == FactorStatus::Success);
+    CHECK(f.factorization_count() == 2);
+    const MatrixX B = MatrixX::Random(n, 2);
+    const MatrixX X = f.solve(B);
+    CHECK((A2 * X - B).norm() <= 1e-10 * B.norm());
+    f.compute(A);  // same pattern: no new analysis needed, one more factorization
+    CHECK(f.factorization_count() == 3);
+
+    SECTION("a different pattern is an invalid input for factorize()") {
+      const SparseMatrix other = pd_matrix<3>(3, 1.0);
+      f.factorize(other);
+      CHECK(f.info() == FactorStatus::InvalidInput);
+      CHECK_FALSE(f.message().empty());
+      f.compute(other);  // compute() re-analyses
+      CHECK(f.info() == FactorStatus::Success);
+    }
+    SECTION("an indefinite matrix is a numerical issue, not a crash") {
+      SparseMatrix Bad = A;
+      Bad.coeffRef(n / 2, n / 2) = -1e9;
+      f.compute(Bad);
+      CHECK(f.info() == FactorStatus::NumericalIssue);
+      CHECK_FALSE(f.message().empty());
+      CHECK_THROWS_AS(f.solve(B), std::logic_error);
+    }
+    SECTION("non-finite values and bad shapes are invalid input") {
+      SparseMatrix Bad = A;
+      Bad.coeffRef(0, 0) = std::nan("");
+      f.factorize(Bad);
+      CHECK(f.info() == FactorStatus::InvalidInput);
+      SparseFactor g(backend);
+      g.compute(SparseMatrix(3, 4));
+      CHECK(g.info() == FactorStatus::InvalidInput);
+      CHECK_THROWS_AS(f.solve(MatrixX::Ones(n + 1, 1)), std::logic_error);
+    }
+  }
+}
+
+TEST_CASE("SparseFactor::solve checks the block height", "[linalg][factor][errors]") {
+  const SparseMatrix A = pd_matrix<2>(4, 1.0);
+  SparseFactor f;
+  f.compute(A);
+  REQUIRE(f.info() == FactorStatus::Success);
+  CHECK_THROWS_AS(f.solve(MatrixX::Ones(A.rows() + 1, 1)), InputError);
+  CHECK(f.solve(MatrixX(A.rows(), 0)).cols() == 0);
+}
