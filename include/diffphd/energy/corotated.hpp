@@ -1,0 +1,57 @@
+#pragma once
+/// \file corotated.hpp
+/// \brief The corotated (ARAP) PD term: p = R, the closest rotation to F (Sec. 4.1).
+
+#include "energy_common.hpp"
+
+namespace diffphd {
+
+/// \brief Corotated PD term, w = 2 mu, p = R from the rotation-variant polar decomposition.
+///
+/// The element surrogate is w V / 2 ||F - R||^2 with R = U V^T in SO(Dim) from svd_rv: for
+/// det F > 0 the polar rotation, for det F < 0 still the closest rotation (never a reflection).
+/// The differential is that of the polar decomposition: in the SVD frame the symmetric part of
+/// U^T dF V is annihilated and the skew part scaled by 2 / (sigma_i + sigma_j)
+/// (detail::spectral_differential with s = 1, ds/dsigma = 0). sigma_i + sigma_j vanishes only
+/// where R is undefined (inverted F with sigma_i = -sigma_j); there the denominator is floored
+/// at sqrt(eps) max(1, |sigma|) and the differential is large but finite.
+struct Corotated {
+  static constexpr const char* name = "corotated";
+  /// w = 2 mu.
+  DIFFPHD_HOST_DEVICE static double weight(double mu, double /*lambda*/) { return 2.0 * mu; }
+  DIFFPHD_HOST_DEVICE static double element_weight(const ElementParams& p) {
+    return weight(p.mu, p.lambda);
+  }
+
+  /// p = R = U V^T. `p`, `means`, `stats` are unused.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project(const Eigen::Matrix<S, Dim, Dim>& F,
+                                                                const ElementParams& /*p*/,
+                                                                const ProxMeans& /*means*/,
+                                                                ProjectStats* /*stats*/ = nullptr) {
+    Eigen::Matrix<S, Dim, Dim> U, V;
+    Eigen::Matrix<S, Dim, 1> sigma;
+    svd_rv<S, Dim>(F, U, sigma, V);
+    return U * V.transpose();
+  }
+
+  /// dR/dF, Dim^2 x Dim^2 (column-major vec).
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential(
+      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& /*p*/, const ProxMeans& /*means*/) {
+    Eigen::Matrix<S, Dim, Dim> U, V;
+    Eigen::Matrix<S, Dim, 1> sigma;
+    svd_rv<S, Dim>(F, U, sigma, V);
+    return detail::spectral_differential<S, Dim>(U, sigma, V, Eigen::Matrix<S, Dim, 1>::Ones(),
+                                                 Eigen::Matrix<S, Dim, Dim>::Zero());
+  }
+
+  /// weight / 2 ||F - R||^2 (per unit rest volume).
+  template <class S, int Dim>
+  static S surrogate_energy(const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p,
+                            const ProxMeans& means) {
+    return S(0.5 * element_weight(p)) * (F - project<S, Dim>(F, p, means)).squaredNorm();
+  }
+};
+
+}  // namespace diffphd

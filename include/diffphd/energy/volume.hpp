@@ -1,0 +1,169 @@
+#pragma once
+/// \file volume.hpp
+/// \brief The volume-preservation PD term: p = the closest matrix to F with det p = 1.
+
+#include "energy_common.hpp"
+
+namespace diffphd {
+
+/// \brief Volume PD term, w = lambda, p = argmin_{det p = 1} ||F - p||.
+///
+/// In stretch space: s* = argmin ||s - sigma||^2 subject to prod s = 1, s > 0, and
+/// p = U diag(s*) V^T. Solved in log-stretches x = ln s on the hyperplane sum x = 0 by Newton
+/// with |eigenvalue| modification and Armijo backtracking, started from
+/// x = ln|sigma| - mean(ln|sigma|) (|sigma| floored at 1e-8 max(1, |sigma|)). For an inverted F
+/// (sigma_last < 0) the result has every s_i > 0: flipping the smallest stretch through zero is
+/// the cheapest way to reach det = +1. The problem is not convex: for large uniform stretch
+/// (sigma = t 1 with t > 2 in 2D) the isotropic point is a saddle and the minimiser is
+/// anisotropic; Newton returns the local minimiser reached from the start above.
+///
+/// Differential (implicit function theorem): with nu the multiplier of s_i - sigma_i = nu / s_i,
+/// D = diag(1 + nu / s_i^2), w = 1/s, J = ds/dsigma = Z (Z^T D Z)^{-1} Z^T for Z an orthonormal
+/// basis of w^perp, computed as (P D P + w_hat w_hat^T)^{-1} - w_hat w_hat^T with
+/// P = I - w_hat w_hat^T; then detail::spectral_differential adds the rotation terms.
+struct Volume {
+  static constexpr const char* name = "volume";
+  /// w = lambda.
+  DIFFPHD_HOST_DEVICE static double weight(double /*mu*/, double lambda) { return lambda; }
+  DIFFPHD_HOST_DEVICE static double element_weight(const ElementParams& p) {
+    return weight(p.mu, p.lambda);
+  }
+
+  /// The closest stretches with prod s = 1, s > 0 (see the class doc).
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, 1> stretches(
+      const Eigen::Matrix<S, Dim, 1>& sigma, ProjectStats* stats = nullptr) {
+    using M = detail::SmallMath<S>;
+    using Vec = Eigen::Matrix<S, Dim, 1>;
+    using Mat = Eigen::Matrix<S, Dim, Dim>;
+    S amax = S(1);
+    for (int i = 0; i < Dim; ++i)
+      if (M::abs(sigma(i)) > amax) amax = M::abs(sigma(i));
+    const S tiny = S(1e-8) * amax;
+    Vec x;
+    for (int i = 0; i < Dim; ++i) {
+      const S a = M::abs(sigma(i));
+      using std::log;
+      x(i) = log(a > tiny ? a : tiny);
+    }
+    x.array() -= x.sum() / S(Dim);
+    const S tol = M::sqrt(detail::eps_of<S>());
+    const Vec one_hat = Vec::Constant(S(1) / M::sqrt(S(Dim)));
+    const Mat P = Mat::Identity() - one_hat * one_hat.transpose();
+    auto expv = [](const Vec& y) {
+      Vec e;
+      using std::exp;
+      for (int i = 0; i < Dim; ++i) e(i) = exp(y(i));
+      return e;
+    };
+    auto objective = [&](const Vec& y) { return S(0.5) * (expv(y) - sigma).squaredNorm(); };
+    int it = 0;
+    bool converged = false, failed = false;
+    const int max_iter = 100;
+    for (; it < max_iter; ++it) {
+      const Vec s = expv(x);
+      Vec g;
+      Mat H = Mat::Zero();
+      for (int i = 0; i < Dim; ++i) {
+        g(i) = s(i) * (s(i) - sigma(i));
+        H(i, i) = s(i) * (S(2) * s(i) - sigma(i));
+      }
+      const Vec gp = P * g;
+      S hscale = S(0);
+      for (int i = 0; i < Dim; ++i) hscale += M::abs(H(i, i));
+      const Mat Hp = P * H * P + (hscale / S(Dim) + S(1)) * one_hat * one_hat.transpose();
+      Vec d = detail::abs_eig_solve<S, Dim>(Hp, Vec(-gp));
+      d -= one_hat * one_hat.dot(d);  // stay on sum x = 0
+      S dmax = S(0);
+      for (int i = 0; i < Dim; ++i)
+        if (M::abs(d(i)) > dmax) dmax = M::abs(d(i));
+      if (dmax <= tol) {
+        x += d;
+        ++it;
+        converged = true;
+        break;
+      }
+      const S f0 = objective(x);
+      const S slope = gp.dot(d);
+      S alpha = S(1);
+      bool ok = false;
+      for (int ls = 0; ls < 50; ++ls) {
+        const Vec trial = x + alpha * d;
+        if (objective(trial) <= f0 + S(1e-4) * alpha * slope) {
+          x = trial;
+          ok = true;
+          break;
+        }
+        alpha *= S(0.5);
+      }
+      if (!ok) {
+        failed = true;
+        ++it;
+        break;
+      }
+    }
+    if (stats) {
+      stats->projections += 1;
+      stats->newton_iterations += it;
+      if (it > stats->max_iterations) stats->max_iterations = it;
+      if (failed) stats->line_search_failures += 1;
+      if (!converged && !failed) stats->not_converged += 1;
+    }
+    return expv(x);
+  }
+
+  /// ds*/dsigma at the solution s of stretches(sigma) (see the class doc).
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> stretch_jacobian(
+      const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, 1>& s) {
+    using Vec = Eigen::Matrix<S, Dim, 1>;
+    using Mat = Eigen::Matrix<S, Dim, Dim>;
+    S nu = S(0);
+    for (int i = 0; i < Dim; ++i) nu += s(i) * (s(i) - sigma(i));
+    nu /= S(Dim);
+    Mat D = Mat::Zero();
+    Vec w;
+    for (int i = 0; i < Dim; ++i) {
+      D(i, i) = S(1) + nu / (s(i) * s(i));
+      w(i) = S(1) / s(i);
+    }
+    const Vec wh = w / detail::SmallMath<S>::sqrt(w.squaredNorm());
+    const Mat W = wh * wh.transpose();
+    const Mat P = Mat::Identity() - W;
+    const Mat B = P * D * P + W;
+    return detail::small_inverse<S, Dim>(B) - W;
+  }
+
+  /// p = U diag(s*) V^T. `p`, `means` are unused; `stats` counts the Newton solve.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project(const Eigen::Matrix<S, Dim, Dim>& F,
+                                                                const ElementParams& /*p*/,
+                                                                const ProxMeans& /*means*/,
+                                                                ProjectStats* stats = nullptr) {
+    Eigen::Matrix<S, Dim, Dim> U, V;
+    Eigen::Matrix<S, Dim, 1> sigma;
+    svd_rv<S, Dim>(F, U, sigma, V);
+    return detail::compose<S, Dim>(U, stretches<S, Dim>(sigma, stats), V);
+  }
+
+  /// dp*/dF, Dim^2 x Dim^2 (column-major vec).
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential(
+      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& /*p*/, const ProxMeans& /*means*/) {
+    Eigen::Matrix<S, Dim, Dim> U, V;
+    Eigen::Matrix<S, Dim, 1> sigma;
+    svd_rv<S, Dim>(F, U, sigma, V);
+    const Eigen::Matrix<S, Dim, 1> s = stretches<S, Dim>(sigma);
+    return detail::spectral_differential<S, Dim>(U, sigma, V, s,
+                                                 stretch_jacobian<S, Dim>(sigma, s));
+  }
+
+  /// weight / 2 ||F - p*||^2 (per unit rest volume).
+  template <class S, int Dim>
+  static S surrogate_energy(const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p,
+                            const ProxMeans& means) {
+    return S(0.5 * element_weight(p)) * (F - project<S, Dim>(F, p, means)).squaredNorm();
+  }
+};
+
+}  // namespace diffphd

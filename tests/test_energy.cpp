@@ -1,0 +1,681 @@
+// Tests of energy/: the PD local projections (Corotated, Volume, NeoHookeanProx, LogVolume,
+// Muscle) against brute-force minimisers over full Dim x Dim matrices, their differentials
+// against central finite differences of project(), fixed points, and the composite Energies.
+#include <catch2/catch.hpp>
+
+#include <Eigen/Dense>
+
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include "diffphd/energy/energy.hpp"
+
+namespace {
+
+using namespace diffphd;
+
+template <int Dim>
+using MatD = Eigen::Matrix<double, Dim, Dim>;
+template <int Dim>
+using VecD = Eigen::Matrix<double, Dim, 1>;
+template <int Dim>
+using DiffD = Eigen::Matrix<double, Dim * Dim, Dim * Dim>;
+
+template <int Dim>
+MatD<Dim> random_rotation(std::mt19937& rng) {
+  std::normal_distribution<double> n(0.0, 1.0);
+  MatD<Dim> A;
+  for (int i = 0; i < Dim * Dim; ++i) A.data()[i] = n(rng);
+  Eigen::HouseholderQR<MatD<Dim>> qr(A);
+  MatD<Dim> Q = qr.householderQ();
+  if (Q.determinant() < 0) Q.col(0) *= -1.0;
+  return Q;
+}
+
+template <int Dim>
+MatD<Dim> with_stretches(std::mt19937& rng, const VecD<Dim>& s) {
+  return random_rotation<Dim>(rng) * s.asDiagonal() * random_rotation<Dim>(rng).transpose();
+}
+
+template <int Dim>
+VecD<Dim> take(double a, double b, double c) {
+  VecD<Dim> v;
+  const double all[3] = {a, b, c};
+  for (int i = 0; i < Dim; ++i) v(i) = all[i];
+  return v;
+}
+
+/// The deformation families of the tests.
+enum class Family { NearIdentity, LargeStretch, Compression, Inverted };
+
+template <int Dim>
+MatD<Dim> sample(std::mt19937& rng, Family f) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  switch (f) {
+    case Family::NearIdentity: {
+      MatD<Dim> F = MatD<Dim>::Identity();
+      for (int i = 0; i < Dim * Dim; ++i) F.data()[i] += 0.15 * u(rng);
+      return F;
+    }
+    case Family::LargeStretch:
+      return with_stretches<Dim>(
+          rng, take<Dim>(2.3 + 0.2 * u(rng), 1.6 + 0.1 * u(rng), 1.2 + 0.1 * u(rng)));
+    case Family::Compression:
+      return with_stretches<Dim>(
+          rng, take<Dim>(0.75 + 0.05 * u(rng), 0.55 + 0.05 * u(rng), 0.4 + 0.05 * u(rng)));
+    case Family::Inverted:
+    default: {
+      VecD<Dim> s = take<Dim>(1.2 + 0.1 * u(rng), 0.9 + 0.05 * u(rng), 0.8 + 0.05 * u(rng));
+      s(Dim - 1) = -0.3 + 0.05 * u(rng);
+      return with_stretches<Dim>(rng, s);
+    }
+  }
+}
+
+const char* family_name(Family f) {
+  switch (f) {
+    case Family::NearIdentity:
+      return "near identity";
+    case Family::LargeStretch:
+      return "large stretch";
+    case Family::Compression:
+      return "compression";
+    default:
+      return "inverted";
+  }
+}
+
+template <int Dim>
+Eigen::Matrix<double, Dim * Dim, 1> vec(const MatD<Dim>& A) {
+  return Eigen::Map<const Eigen::Matrix<double, Dim * Dim, 1>>(A.data());
+}
+
+/// Central finite differences of vec(proj(F)) in vec(F), step h.
+template <int Dim, class Proj>
+DiffD<Dim> fd_differential(const MatD<Dim>& F, Proj proj, double h = 1e-6) {
+  DiffD<Dim> D;
+  for (int b = 0; b < Dim * Dim; ++b) {
+    MatD<Dim> Fp = F, Fm = F;
+    Fp.data()[b] += h;
+    Fm.data()[b] -= h;
+    D.col(b) = (vec<Dim>(proj(Fp)) - vec<Dim>(proj(Fm))) / (2.0 * h);
+  }
+  return D;
+}
+
+double rel_err(const Eigen::MatrixXd& A, const Eigen::MatrixXd& B) {
+  return (A - B).norm() / std::max(B.norm(), 1.0);
+}
+
+/// A generic minimiser for the brute-force references: Levenberg-Marquardt-damped Newton with
+/// finite-difference gradient (central, h = 1e-6) and Hessian (second differences, h = 1e-4).
+/// f returns +inf outside its domain.
+template <int N, class Fn>
+Eigen::Matrix<double, N, 1> minimize_fd(Fn f, Eigen::Matrix<double, N, 1> x, int max_iter = 300) {
+  using V = Eigen::Matrix<double, N, 1>;
+  using M = Eigen::Matrix<double, N, N>;
+  auto grad = [&](const V& y) {
+    V g;
+    const double h = 1e-6;
+    for (int i = 0; i < N; ++i) {
+      V a = y, b = y;
+      a(i) += h;
+      b(i) -= h;
+      g(i) = (f(a) - f(b)) / (2 * h);
+    }
+    return g;
+  };
+  auto hess = [&](const V& y) {
+    M H;
+    const double h = 1e-4;
+    const double f0 = f(y);
+    for (int i = 0; i < N; ++i)
+      for (int j = i; j < N; ++j) {
+        if (i == j) {
+          V a = y, b = y;
+          a(i) += h;
+          b(i) -= h;
+          H(i, i) = (f(a) - 2 * f0 + f(b)) / (h * h);
+        } else {
+          V pp = y, pm = y, mp = y, mm = y;
+          pp(i) += h, pp(j) += h;
+          pm(i) += h, pm(j) -= h;
+          mp(i) -= h, mp(j) += h;
+          mm(i) -= h, mm(j) -= h;
+          H(i, j) = H(j, i) = (f(pp) - f(pm) - f(mp) + f(mm)) / (4 * h * h);
+        }
+      }
+    return H;
+  };
+  double damping = 1e-6;
+  double fx = f(x);
+  for (int it = 0; it < max_iter; ++it) {
+    const V g = grad(x);
+    if (g.norm() < 1e-11) break;
+    const M H = hess(x);
+    bool improved = false;
+    for (int tries = 0; tries < 30; ++tries) {
+      const M Hd = H + damping * (H.diagonal().cwiseAbs().maxCoeff() + 1.0) * M::Identity();
+      const V d = -Hd.ldlt().solve(g);
+      const V xn = x + d;
+      const double fn = f(xn);
+      if (std::isfinite(fn) && fn <= fx) {
+        improved = d.norm() > 1e-15;
+        x = xn;
+        fx = fn;
+        damping = std::max(damping * 0.1, 1e-12);
+        break;
+      }
+      damping *= 10.0;
+    }
+    if (!improved) break;
+  }
+  return x;
+}
+
+/// Minimises f over Dim x Dim matrices from several starts; returns the best.
+template <int Dim, class Fn>
+MatD<Dim> minimize_matrix(Fn f, const std::vector<MatD<Dim>>& starts) {
+  using V = Eigen::Matrix<double, Dim * Dim, 1>;
+  auto fv = [&](const V& x) { return f(MatD<Dim>(Eigen::Map<const MatD<Dim>>(x.data()))); };
+  double best = std::numeric_limits<double>::infinity();
+  MatD<Dim> arg = starts.front();
+  for (const auto& s : starts) {
+    if (!std::isfinite(f(s))) continue;
+    const V x = minimize_fd<Dim * Dim>(fv, vec<Dim>(s));
+    const MatD<Dim> X = Eigen::Map<const MatD<Dim>>(x.data());
+    const double v = f(X);
+    if (v < best) best = v, arg = X;
+  }
+  return arg;
+}
+
+template <int Dim>
+std::vector<MatD<Dim>> starts_for(const MatD<Dim>& F, std::mt19937& rng) {
+  std::vector<MatD<Dim>> s;
+  s.push_back(MatD<Dim>::Identity());
+  if (F.determinant() > 0) s.push_back(F);
+  MatD<Dim> R, S;
+  polar_rv<double, Dim>(F, R, S);
+  s.push_back(R);
+  for (int k = 0; k < 3; ++k) {
+    std::uniform_real_distribution<double> u(0.6, 1.6);
+    s.push_back(R * with_stretches<Dim>(rng, take<Dim>(u(rng), u(rng), u(rng))));
+  }
+  return s;
+}
+
+/// Neo-Hookean density over a full matrix (no SVD): mu/2 (|p|^2 - d) - mu ln J + lambda/2 ln^2 J.
+template <int Dim>
+double nh_density(const MatD<Dim>& P, double mu, double lambda) {
+  const double J = P.determinant();
+  if (!(J > 0)) return std::numeric_limits<double>::infinity();
+  const double l = std::log(J);
+  return 0.5 * mu * (P.squaredNorm() - Dim) - mu * l + 0.5 * lambda * l * l;
+}
+template <int Dim>
+double logvol_density(const MatD<Dim>& P, double mu, double lambda) {
+  const double J = P.determinant();
+  if (!(J > 0)) return std::numeric_limits<double>::infinity();
+  const double l = std::log(J);
+  return -mu * l + 0.5 * lambda * l * l;
+}
+
+const ElementParams kParams = [] {
+  ElementParams p;
+  p.mu = 1.0;
+  p.lambda = 4.0;
+  p.weight = 3.0;
+  return p;
+}();
+const ProxMeans kMeans{1.0, 4.0, 6.0};
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Local projections against brute force
+// ---------------------------------------------------------------------------------------------
+
+TEMPLATE_TEST_CASE_SIG("Corotated projection is the closest rotation", "[energy][corotated]",
+                       ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(11 + Dim);
+  for (Family fam :
+       {Family::NearIdentity, Family::LargeStretch, Family::Compression, Family::Inverted}) {
+    INFO(family_name(fam));
+    for (int trial = 0; trial < 5; ++trial) {
+      const MatD<Dim> F = sample<Dim>(rng, fam);
+      const MatD<Dim> R = Corotated::project<double, Dim>(F, kParams, kMeans);
+      CHECK((R.transpose() * R - MatD<Dim>::Identity()).norm() < 1e-12);
+      CHECK(R.determinant() == Approx(1.0).epsilon(1e-12));
+      // Kabsch rotation from Eigen's JacobiSVD.
+      Eigen::JacobiSVD<MatD<Dim>> svd(F, Eigen::ComputeFullU | Eigen::ComputeFullV);
+      MatD<Dim> Dg = MatD<Dim>::Identity();
+      Dg(Dim - 1, Dim - 1) = (svd.matrixU() * svd.matrixV().transpose()).determinant() > 0 ? 1 : -1;
+      const MatD<Dim> Rk = svd.matrixU() * Dg * svd.matrixV().transpose();
+      CHECK((R - Rk).norm() < 1e-10);
+      if constexpr (Dim == 2) {
+        // Sampled search over SO(2), refined by golden section.
+        auto dist = [&](double t) {
+          MatD<2> Q;
+          Q << std::cos(t), -std::sin(t), std::sin(t), std::cos(t);
+          return (F - Q).squaredNorm();
+        };
+        const int n = 20000;
+        double bt = 0, bv = 1e300;
+        for (int i = 0; i < n; ++i) {
+          const double t = 2 * M_PI * i / n;
+          if (dist(t) < bv) bv = dist(t), bt = t;
+        }
+        double a = bt - 2 * M_PI / n, b = bt + 2 * M_PI / n;
+        const double gr = 0.5 * (std::sqrt(5.0) - 1);
+        for (int i = 0; i < 100; ++i) {
+          const double c = b - gr * (b - a), d = a + gr * (b - a);
+          if (dist(c) < dist(d))
+            b = d;
+          else
+            a = c;
+        }
+        const double t = 0.5 * (a + b);
+        MatD<2> Q;
+        Q << std::cos(t), -std::sin(t), std::sin(t), std::cos(t);
+        CHECK((R - Q).norm() < 1e-7);
+      }
+    }
+  }
+}
+
+TEMPLATE_TEST_CASE_SIG("Volume projection is the closest det = 1 matrix", "[energy][volume]",
+                       ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(21 + Dim);
+  for (Family fam : {Family::NearIdentity, Family::Compression, Family::Inverted}) {
+    INFO(family_name(fam));
+    for (int trial = 0; trial < 3; ++trial) {
+      const MatD<Dim> F = sample<Dim>(rng, fam);
+      ProjectStats st;
+      const MatD<Dim> P = Volume::project<double, Dim>(F, kParams, kMeans, &st);
+      CHECK(P.determinant() == Approx(1.0).epsilon(1e-12));
+      CHECK(st.line_search_failures == 0);
+      CHECK(st.not_converged == 0);
+      // Brute force: min ||F - Q / det(Q)^(1/d)||^2 over all Q with det Q > 0.
+      auto normalized = [](const MatD<Dim>& Q) {
+        return MatD<Dim>(Q / std::pow(Q.determinant(), 1.0 / Dim));
+      };
+      auto f = [&](const MatD<Dim>& Q) {
+        const double J = Q.determinant();
+        if (!(J > 1e-3)) return std::numeric_limits<double>::infinity();
+        return (F - normalized(Q)).squaredNorm();
+      };
+      const MatD<Dim> Qb = normalized(minimize_matrix<Dim>(f, starts_for<Dim>(F, rng)));
+      INFO("F =\n" << F << "\nP =\n" << P << "\nbrute =\n" << Qb);
+      CHECK((P - Qb).norm() < 1e-7);
+    }
+  }
+  // Large uniform-ish stretch below the bifurcation at t = 2 (see Volume's doc).
+  const MatD<Dim> F = with_stretches<Dim>(rng, take<Dim>(1.7, 1.4, 1.2));
+  const MatD<Dim> P = Volume::project<double, Dim>(F, kParams, kMeans);
+  auto f = [&](const MatD<Dim>& Q) {
+    const double J = Q.determinant();
+    if (!(J > 1e-3)) return std::numeric_limits<double>::infinity();
+    return (F - Q / std::pow(J, 1.0 / Dim)).squaredNorm();
+  };
+  MatD<Dim> Qb = minimize_matrix<Dim>(f, starts_for<Dim>(F, rng));
+  Qb /= std::pow(Qb.determinant(), 1.0 / Dim);
+  CHECK((P - Qb).norm() < 1e-7);
+}
+
+TEMPLATE_TEST_CASE_SIG("Neo-Hookean and log-volume proxes are the proximal maps", "[energy][prox]",
+                       ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(31 + Dim);
+  const ProxMeans means{1.0, 4.0, 6.0};
+  for (Family fam :
+       {Family::NearIdentity, Family::LargeStretch, Family::Compression, Family::Inverted}) {
+    INFO(family_name(fam));
+    for (int trial = 0; trial < 2; ++trial) {
+      const MatD<Dim> F = sample<Dim>(rng, fam);
+      {
+        ProjectStats st;
+        const MatD<Dim> P = NeoHookeanProx::project<double, Dim>(F, kParams, means, &st);
+        auto f = [&](const MatD<Dim>& Q) {
+          return 0.5 * means.k_bar * (Q - F).squaredNorm() +
+                 nh_density<Dim>(Q, means.mu_bar, means.lambda_bar);
+        };
+        const MatD<Dim> Qb = minimize_matrix<Dim>(f, starts_for<Dim>(F, rng));
+        INFO("neo-hookean F =\n" << F << "\nP =\n" << P << "\nbrute =\n" << Qb);
+        CHECK(f(P) <= f(Qb) + 1e-12);
+        CHECK((P - Qb).norm() < 1e-7);
+        CHECK(P.determinant() > 0);
+        CHECK(st.line_search_failures == 0);
+        CHECK(st.not_converged == 0);
+        CHECK(st.max_iterations <= 20);
+      }
+      {
+        const MatD<Dim> P = LogVolume::project<double, Dim>(F, kParams, means);
+        auto f = [&](const MatD<Dim>& Q) {
+          return 0.5 * means.k_bar * (Q - F).squaredNorm() +
+                 logvol_density<Dim>(Q, means.mu_bar, means.lambda_bar);
+        };
+        const MatD<Dim> Qb = minimize_matrix<Dim>(f, starts_for<Dim>(F, rng));
+        INFO("log-volume F =\n" << F << "\nP =\n" << P << "\nbrute =\n" << Qb);
+        CHECK((P - Qb).norm() < 1e-7);
+      }
+    }
+  }
+}
+
+TEMPLATE_TEST_CASE_SIG("Prox handles severe inversion and tiny stretches", "[energy][prox]",
+                       ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(41 + Dim);
+  for (double last : {-2.0, -1e-3, 1e-6, 1e-12}) {
+    VecD<Dim> s = take<Dim>(1.5, 1.0, 0.9);
+    s(Dim - 1) = last;
+    const MatD<Dim> F = with_stretches<Dim>(rng, s);
+    ProjectStats st;
+    const MatD<Dim> P = NeoHookeanProx::project<double, Dim>(F, kParams, kMeans, &st);
+    INFO("last stretch " << last);
+    CHECK(P.allFinite());
+    CHECK(P.determinant() > 0);
+    CHECK(st.line_search_failures == 0);
+    CHECK(st.not_converged == 0);
+    const MatD<Dim> Pl = LogVolume::project<double, Dim>(F, kParams, kMeans, &st);
+    CHECK(Pl.allFinite());
+    CHECK(Pl.determinant() > 0);
+    const MatD<Dim> Pv = Volume::project<double, Dim>(F, kParams, kMeans, &st);
+    CHECK(Pv.determinant() == Approx(1.0).epsilon(1e-10));
+    CHECK(st.line_search_failures == 0);
+    CHECK(st.not_converged == 0);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fixed points
+// ---------------------------------------------------------------------------------------------
+
+TEMPLATE_TEST_CASE_SIG("Fixed points of the projections", "[energy][fixed-point]", ((int Dim), Dim),
+                       2, 3) {
+  std::mt19937 rng(51 + Dim);
+  for (int trial = 0; trial < 10; ++trial) {
+    const MatD<Dim> R = random_rotation<Dim>(rng);
+    CHECK((Corotated::project<double, Dim>(R, kParams, kMeans) - R).norm() < 1e-13);
+    std::uniform_real_distribution<double> u(0.5, 2.0);
+    VecD<Dim> s;
+    for (int i = 0; i < Dim; ++i) s(i) = u(rng);
+    s /= std::pow(s.prod(), 1.0 / Dim);
+    const MatD<Dim> F = with_stretches<Dim>(rng, s);
+    CHECK((Volume::project<double, Dim>(F, kParams, kMeans) - F).norm() < 1e-12);
+  }
+  const MatD<Dim> I = MatD<Dim>::Identity();
+  ProjectStats st;
+  CHECK((NeoHookeanProx::project<double, Dim>(I, kParams, kMeans, &st) - I).norm() < 1e-14);
+  CHECK(st.newton_iterations <= 1);
+  CHECK((Volume::project<double, Dim>(I, kParams, kMeans) - I).norm() < 1e-14);
+  // Log-volume at F = I: isotropic t with k (t - 1) + (d lambda ln t - mu) / t = 0 (t > 1).
+  const double k = kMeans.k_bar, mu = kMeans.mu_bar, la = kMeans.lambda_bar;
+  double t = 1.0;
+  for (int i = 0; i < 50; ++i) {
+    const double r = k * (t - 1) + (Dim * la * std::log(t) - mu) / t;
+    const double dr = k + (Dim * la - Dim * la * std::log(t) + mu) / (t * t);
+    t -= r / dr;
+  }
+  CHECK(t > 1.0);
+  CHECK((LogVolume::project<double, Dim>(I, kParams, kMeans) - t * I).norm() < 1e-12);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Differentials against central finite differences
+// ---------------------------------------------------------------------------------------------
+
+TEMPLATE_TEST_CASE_SIG("Differentials match central finite differences", "[energy][differential]",
+                       ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(61 + Dim);
+  const double tol = 1e-6;
+  for (Family fam :
+       {Family::NearIdentity, Family::LargeStretch, Family::Compression, Family::Inverted}) {
+    INFO(family_name(fam));
+    for (int trial = 0; trial < 3; ++trial) {
+      const MatD<Dim> F = sample<Dim>(rng, fam);
+      INFO("F =\n" << F);
+      auto check = [&](const char* name, const DiffD<Dim>& D, auto proj) {
+        INFO(name);
+        const DiffD<Dim> Dfd = fd_differential<Dim>(F, proj);
+        CHECK(D.allFinite());
+        CHECK(rel_err(D, Dfd) < tol);
+      };
+      check(
+          "corotated", Corotated::differential<double, Dim>(F, kParams, kMeans),
+          [&](const MatD<Dim>& G) { return Corotated::project<double, Dim>(G, kParams, kMeans); });
+      check("volume", Volume::differential<double, Dim>(F, kParams, kMeans),
+            [&](const MatD<Dim>& G) { return Volume::project<double, Dim>(G, kParams, kMeans); });
+      check("neo-hookean prox", NeoHookeanProx::differential<double, Dim>(F, kParams, kMeans),
+            [&](const MatD<Dim>& G) {
+              return NeoHookeanProx::project<double, Dim>(G, kParams, kMeans);
+            });
+      check("neo-hookean prox, per element",
+            NeoHookeanProxPerElement::differential<double, Dim>(F, kParams, kMeans),
+            [&](const MatD<Dim>& G) {
+              return NeoHookeanProxPerElement::project<double, Dim>(G, kParams, kMeans);
+            });
+      check(
+          "log-volume", LogVolume::differential<double, Dim>(F, kParams, kMeans),
+          [&](const MatD<Dim>& G) { return LogVolume::project<double, Dim>(G, kParams, kMeans); });
+      check("muscle", Muscle::differential<double, Dim>(F, kParams, kMeans),
+            [&](const MatD<Dim>& G) { return Muscle::project<double, Dim>(G, kParams, kMeans); });
+    }
+  }
+}
+
+TEMPLATE_TEST_CASE_SIG("Differentials at (nearly) repeated stretches", "[energy][differential]",
+                       ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(71 + Dim);
+  for (double gap : {1e-3, 1e-9, 0.0}) {
+    INFO("gap " << gap);
+    const MatD<Dim> F = with_stretches<Dim>(rng, take<Dim>(1.3, 1.3 - gap, 0.8));
+    // FD with a step larger than the gap is not a derivative of the un-perturbed branch where
+    // the gap is O(h); compare with h = 1e-6 only where gap >> h, and with h = 1e-7 otherwise
+    // (the maps are smooth through repeated stretches, so FD stays valid).
+    const double h = gap > 1e-5 ? 1e-6 : 1e-5;
+    auto cmp = [&](const DiffD<Dim>& D, auto proj) {
+      CHECK(D.allFinite());
+      CHECK(rel_err(D, fd_differential<Dim>(F, proj, h)) < 1e-5);
+    };
+    cmp(Corotated::differential<double, Dim>(F, kParams, kMeans),
+        [&](const MatD<Dim>& G) { return Corotated::project<double, Dim>(G, kParams, kMeans); });
+    cmp(Volume::differential<double, Dim>(F, kParams, kMeans),
+        [&](const MatD<Dim>& G) { return Volume::project<double, Dim>(G, kParams, kMeans); });
+    cmp(NeoHookeanProx::differential<double, Dim>(F, kParams, kMeans), [&](const MatD<Dim>& G) {
+      return NeoHookeanProx::project<double, Dim>(G, kParams, kMeans);
+    });
+  }
+  // At F = I every stretch is repeated: the corotated differential is the skew projection.
+  const DiffD<Dim> D = Corotated::differential<double, Dim>(MatD<Dim>::Identity(), kParams, kMeans);
+  DiffD<Dim> skew = DiffD<Dim>::Zero();
+  for (int j = 0; j < Dim; ++j)
+    for (int i = 0; i < Dim; ++i) {
+      skew(i + Dim * j, i + Dim * j) += 0.5;
+      skew(i + Dim * j, j + Dim * i) -= 0.5;
+    }
+  CHECK((D - skew).norm() < 1e-14);
+}
+
+TEMPLATE_TEST_CASE_SIG("Neo-Hookean prox differential where H_psi is indefinite",
+                       "[energy][differential][prox]", ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(81 + Dim);
+  // Large volumetric stretch with high lambda: ln J > 1 makes H_psi indefinite
+  // (sigma_i^2 (mu + lambda) < lambda ln J); a large k_bar keeps H_psi + k_bar I positive definite.
+  const ProxMeans means{1.0, 20.0, 60.0};
+  const MatD<Dim> F = with_stretches<Dim>(rng, take<Dim>(2.6, 2.4, 2.0));
+  Eigen::Matrix<double, Dim, Dim> U, V;
+  VecD<Dim> sigma;
+  svd_rv<double, Dim>(F, U, sigma, V);
+  const VecD<Dim> s = NeoHookeanProx::stretches<double, Dim>(sigma, kParams, means);
+  const VecD<Dim> kappa = NeoHookeanProx::prox_hessian_eigenvalues<double, Dim>(s, kParams, means);
+  INFO("s* = " << s.transpose() << ", eig(H_psi + k I) = " << kappa.transpose());
+  REQUIRE(kappa(Dim - 1) - means.k_bar < 0.0);  // H_psi indefinite
+  REQUIRE(kappa(Dim - 1) > 0.0);                // H_psi + k I positive definite
+  const DiffD<Dim> D = NeoHookeanProx::differential<double, Dim>(F, kParams, means);
+  const DiffD<Dim> Dfd = fd_differential<Dim>(F, [&](const MatD<Dim>& G) {
+    return NeoHookeanProx::project<double, Dim>(G, kParams, means);
+  });
+  CHECK(rel_err(D, Dfd) < 1e-6);
+  // Filters (eqs. 24-25): tau = 0 is the plain differential; tau = 1/2 and 1 change nothing
+  // while H_prox is positive definite.
+  CHECK((NeoHookeanProx::differential_filtered<double, Dim>(F, kParams, means, 0.5) - D).norm() <
+        1e-10 * D.norm());
+  CHECK((NeoHookeanProx::differential_filtered<double, Dim>(F, kParams, means, 1.0) - D).norm() <
+        1e-10 * D.norm());
+}
+
+TEMPLATE_TEST_CASE_SIG("Filtered prox Hessian (eq. 24) where H_prox is indefinite",
+                       "[energy][prox][filter]", ((int Dim), Dim), 2, 3) {
+  const ProxMeans means{1.0, 20.0, 1.0};
+  const VecD<Dim> s = take<Dim>(2.6, 2.4, 2.0);
+  const MatD<Dim> H = NeoHookeanProx::prox_hessian<double, Dim>(s, kParams, means);
+  Eigen::SelfAdjointEigenSolver<MatD<Dim>> es(H);
+  REQUIRE(es.eigenvalues()(0) < 0.0);
+  for (double tau : {0.0, 0.5, 1.0}) {
+    const MatD<Dim> Ht = NeoHookeanProx::filtered_prox_hessian<double, Dim>(s, kParams, means, tau);
+    VecD<Dim> want;
+    for (int i = 0; i < Dim; ++i) {
+      const double k = es.eigenvalues()(i);
+      want(i) = (1 - tau) * k + tau * std::abs(k);
+    }
+    Eigen::SelfAdjointEigenSolver<MatD<Dim>> et(Ht);
+    std::sort(want.data(), want.data() + Dim);
+    CHECK((et.eigenvalues() - want).norm() < 1e-12 * H.norm());
+  }
+}
+
+TEMPLATE_TEST_CASE_SIG("Prox derivatives with respect to the means", "[energy][differential][prox]",
+                       ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(91 + Dim);
+  const MatD<Dim> F = sample<Dim>(rng, Family::LargeStretch);
+  const double h = 1e-6;
+  auto check = [&](auto term) {
+    using T = decltype(term);
+    const Eigen::Matrix<double, Dim * Dim, 3> D =
+        T::template param_differential<double, Dim>(F, kParams, kMeans);
+    for (int c = 0; c < 3; ++c) {
+      ProxMeans mp = kMeans, mm = kMeans;
+      double* fp = c == 0 ? &mp.mu_bar : c == 1 ? &mp.lambda_bar : &mp.k_bar;
+      double* fm = c == 0 ? &mm.mu_bar : c == 1 ? &mm.lambda_bar : &mm.k_bar;
+      *fp += h;
+      *fm -= h;
+      const Eigen::Matrix<double, Dim * Dim, 1> fd =
+          (vec<Dim>(T::template project<double, Dim>(F, kParams, mp)) -
+           vec<Dim>(T::template project<double, Dim>(F, kParams, mm))) /
+          (2 * h);
+      CHECK(rel_err(D.col(c), fd) < 1e-6);
+    }
+  };
+  check(NeoHookeanProx{});
+  check(LogVolume{});
+}
+
+// ---------------------------------------------------------------------------------------------
+// Routing, muscle, composite, float
+// ---------------------------------------------------------------------------------------------
+
+TEMPLATE_TEST_CASE_SIG("Per-element routing puts (mu_e, lambda_e, 2 mu_e + lambda_e) in the prox",
+                       "[energy][prox]", ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(101 + Dim);
+  ElementParams p = kParams;
+  p.mu = 30.0;
+  p.lambda = 70.0;
+  const ProxMeans equivalent{p.mu, p.lambda, 2 * p.mu + p.lambda};
+  const MatD<Dim> F = sample<Dim>(rng, Family::Compression);
+  CHECK((NeoHookeanProxPerElement::project<double, Dim>(F, p, kMeans) -
+         NeoHookeanProx::project<double, Dim>(F, p, equivalent))
+            .norm() < 1e-14);
+  CHECK((NeoHookeanProx::project<double, Dim>(F, p, kMeans) -
+         NeoHookeanProx::project<double, Dim>(F, kParams, kMeans))
+            .norm() == 0.0);  // MeshMeans ignores the element's own (mu, lambda)
+  CHECK(NeoHookeanProx::weight(p.mu, p.lambda) == 2 * p.mu + p.lambda);
+}
+
+TEMPLATE_TEST_CASE_SIG("Muscle fibre projection and operator", "[energy][muscle]", ((int Dim), Dim),
+                       2, 3) {
+  std::mt19937 rng(111 + Dim);
+  ElementParams p = kParams;
+  p.fibre = Eigen::Vector3d(1.0, 2.0, -0.5);
+  p.activation = 0.7;
+  p.weight = 5.0;
+  const VecD<Dim> m = p.fibre.head<Dim>().normalized();
+  for (int trial = 0; trial < 5; ++trial) {
+    const MatD<Dim> F = sample<Dim>(rng, Family::NearIdentity);
+    const VecD<Dim> v = F * m;
+    const VecD<Dim> pf = Muscle::project_fibre<double, Dim>(F, p);
+    CHECK((pf - p.activation * v.normalized()).norm() < 1e-14);
+    CHECK((Muscle::project<double, Dim>(F, p, kMeans) - pf * m.transpose()).norm() < 1e-14);
+    const double e = 0.5 * p.weight * (v.norm() - p.activation) * (v.norm() - p.activation);
+    CHECK(Muscle::surrogate_energy<double, Dim>(F, p, kMeans) == Approx(e).epsilon(1e-12));
+    const DiffD<Dim> K = Muscle::fibre_operator<double, Dim>(m);
+    CHECK(vec<Dim>(F).dot(K * vec<Dim>(F)) == Approx(v.squaredNorm()).epsilon(1e-12));
+    // dp/dv against finite differences in v.
+    const MatD<Dim> Dv = Muscle::fibre_differential<double, Dim>(F, p);
+    MatD<Dim> Dfd;
+    for (int j = 0; j < Dim; ++j) {
+      const double h = 1e-6;
+      // Perturb F so that F m moves by h e_j: F + h e_j m^T.
+      const MatD<Dim> Fp = F + h * VecD<Dim>::Unit(j) * m.transpose();
+      const MatD<Dim> Fm = F - h * VecD<Dim>::Unit(j) * m.transpose();
+      Dfd.col(j) =
+          (Muscle::project_fibre<double, Dim>(Fp, p) - Muscle::project_fibre<double, Dim>(Fm, p)) /
+          (2 * h);
+    }
+    CHECK(rel_err(Dv, Dfd) < 1e-8);
+  }
+  CHECK(Muscle::project_fibre<double, Dim>(MatD<Dim>::Zero(), p).allFinite());
+}
+
+TEMPLATE_TEST_CASE_SIG("Energies<Corotated, Volume> sums its parts", "[energy][composite]",
+                       ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(121 + Dim);
+  using E = Energies<Corotated, Volume>;
+  STATIC_REQUIRE(E::size == 2);
+  STATIC_REQUIRE(!E::has_fibre_terms);
+  CHECK(E::weight(kParams.mu, kParams.lambda) == 2 * kParams.mu + kParams.lambda);
+  for (int trial = 0; trial < 4; ++trial) {
+    const MatD<Dim> F = sample<Dim>(rng, trial % 2 ? Family::Compression : Family::NearIdentity);
+    const MatD<Dim> want = 2 * kParams.mu * Corotated::project<double, Dim>(F, kParams, kMeans) +
+                           kParams.lambda * Volume::project<double, Dim>(F, kParams, kMeans);
+    CHECK((E::weighted_projection<double, Dim>(F, kParams, kMeans) - want).norm() < 1e-13);
+    const DiffD<Dim> Dwant =
+        2 * kParams.mu * Corotated::differential<double, Dim>(F, kParams, kMeans) +
+        kParams.lambda * Volume::differential<double, Dim>(F, kParams, kMeans);
+    CHECK((E::weighted_differential<double, Dim>(F, kParams, kMeans) - Dwant).norm() < 1e-12);
+    CHECK(E::surrogate_energy<double, Dim>(F, kParams, kMeans) ==
+          Approx(Corotated::surrogate_energy<double, Dim>(F, kParams, kMeans) +
+                 Volume::surrogate_energy<double, Dim>(F, kParams, kMeans))
+              .epsilon(1e-13));
+  }
+  // With a fibre term: weight() keeps isotropic terms only, fibre_weight() the muscle's k.
+  using EM = Energies<Corotated, Volume, Muscle>;
+  STATIC_REQUIRE(EM::has_fibre_terms);
+  CHECK(EM::element_weight(kParams) == 2 * kParams.mu + kParams.lambda);
+  CHECK(EM::fibre_weight(kParams) == kParams.weight);
+  const MatD<Dim> F = sample<Dim>(rng, Family::NearIdentity);
+  const MatD<Dim> want = E::weighted_projection<double, Dim>(F, kParams, kMeans) +
+                         kParams.weight * Muscle::project<double, Dim>(F, kParams, kMeans);
+  CHECK((EM::weighted_projection<double, Dim>(F, kParams, kMeans) - want).norm() < 1e-13);
+}
+
+TEMPLATE_TEST_CASE_SIG("Single precision projections agree with double", "[energy][float]",
+                       ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(131 + Dim);
+  for (Family fam :
+       {Family::NearIdentity, Family::LargeStretch, Family::Compression, Family::Inverted}) {
+    INFO(family_name(fam));
+    const MatD<Dim> F = sample<Dim>(rng, fam);
+    const Eigen::Matrix<float, Dim, Dim> Ff = F.template cast<float>();
+    auto cmp = [&](const MatD<Dim>& Pd, const Eigen::Matrix<float, Dim, Dim>& Pf) {
+      CHECK((Pf.template cast<double>() - Pd).norm() < 2e-5 * std::max(1.0, Pd.norm()));
+    };
+    cmp(Corotated::project<double, Dim>(F, kParams, kMeans),
+        Corotated::project<float, Dim>(Ff, kParams, kMeans));
+    cmp(Volume::project<double, Dim>(F, kParams, kMeans),
+        Volume::project<float, Dim>(Ff, kParams, kMeans));
+    cmp(NeoHookeanProx::project<double, Dim>(F, kParams, kMeans),
+        NeoHookeanProx::project<float, Dim>(Ff, kParams, kMeans));
+  }
+}
