@@ -2,6 +2,8 @@
 # Runs the test cases tagged [.slow] (hidden from the default suite) in every test executable.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# OpenBLAS threads spin against OpenMP on small machines (docs/linalg.md): one BLAS thread.
+export OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1}
 bash scripts/install-deps.sh
 bash scripts/build.sh
 status=0

@@ -37,7 +37,8 @@ SimplicialMesh<Dim> grid(int n, double jitter, unsigned seed = 1) {
           els.push_back({id(i, j, 0), id(i + 1, j + 1, 0), id(i, j + 1, 0)});
         } else {
           // Kuhn split: paths from corner 000 to 111 through the 6 axis permutations.
-          const int perms[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
+          const int perms[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2},
+                                   {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
           for (auto& p : perms) {
             int c[3] = {i, j, k};
             std::array<int, 4> t;
@@ -47,8 +48,8 @@ SimplicialMesh<Dim> grid(int n, double jitter, unsigned seed = 1) {
               t[s + 1] = id(c[0], c[1], c[2]);
             }
             // Orientation of the path simplex is the sign of the permutation.
-            const bool odd = (p[0] == 0 && p[1] == 2) || (p[0] == 1 && p[1] == 0) ||
-                             (p[0] == 2 && p[1] == 1);
+            const bool odd =
+                (p[0] == 0 && p[1] == 2) || (p[0] == 1 && p[1] == 0) || (p[0] == 2 && p[1] == 1);
             if (odd) std::swap(t[1], t[2]);
             els.push_back(t);
           }
@@ -62,8 +63,7 @@ SimplicialMesh<Dim> grid(int n, double jitter, unsigned seed = 1) {
 
 }  // namespace
 
-TEMPLATE_TEST_CASE_SIG("rest volumes sum to the domain volume", "[mesh]", ((int Dim), Dim), 2,
-                       3) {
+TEMPLATE_TEST_CASE_SIG("rest volumes sum to the domain volume", "[mesh]", ((int Dim), Dim), 2, 3) {
   const auto mesh = grid<Dim>(4, 0.2);
   CHECK(mesh.total_volume() == Approx(1.0).epsilon(1e-12));
   CHECK(mesh.rest_volumes().minCoeff() > 0);
@@ -148,9 +148,9 @@ TEST_CASE("bad meshes raise InputError naming file, line and element", "[mesh][e
 
   SECTION("inverted") {
     std::swap(T(1, 1), T(1, 2));
-    REQUIRE_THROWS_WITH(SimplicialMesh<3>(X, T, src),
-                        Catch::Contains("cube.ele:12") && Catch::Contains("element 1") &&
-                            Catch::Contains("inverted"));
+    REQUIRE_THROWS_WITH(SimplicialMesh<3>(X, T, src), Catch::Contains("cube.ele:12") &&
+                                                          Catch::Contains("element 1") &&
+                                                          Catch::Contains("inverted"));
   }
   SECTION("out-of-range index") {
     T(1, 3) = 9;
@@ -171,9 +171,9 @@ TEST_CASE("bad meshes raise InputError naming file, line and element", "[mesh][e
   SECTION("NaN coordinate") {
     X(2, 1) = std::numeric_limits<double>::quiet_NaN();
     src.vertex_line = {3, 4, 5, 6, 7};
-    REQUIRE_THROWS_WITH(SimplicialMesh<3>(X, T, src),
-                        Catch::Contains("cube.ele:5") && Catch::Contains("vertex 2") &&
-                            Catch::Contains("non-finite"));
+    REQUIRE_THROWS_WITH(SimplicialMesh<3>(X, T, src), Catch::Contains("cube.ele:5") &&
+                                                          Catch::Contains("vertex 2") &&
+                                                          Catch::Contains("non-finite"));
   }
   SECTION("non-manifold facet") {
     SimplicialMesh<2>::Positions P(5, 2);

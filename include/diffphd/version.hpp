@@ -7,5 +7,7 @@ namespace diffphd {
 #define DIFFPHD_VERSION_MINOR 1
 #define DIFFPHD_VERSION_PATCH 0
 /// "major.minor.patch", the same as the CMake project version.
-inline const char* version() { return "0.1.0"; }
+inline const char* version() {
+  return "0.1.0";
+}
 }  // namespace diffphd

@@ -24,9 +24,13 @@ struct Material {
 };
 
 /// Shear modulus mu = E / (2 (1 + nu)), eq. (1).
-inline double lame_mu(double E, double nu) { return E / (2.0 * (1.0 + nu)); }
+inline double lame_mu(double E, double nu) {
+  return E / (2.0 * (1.0 + nu));
+}
 /// First Lame parameter lambda = E nu / ((1 + nu)(1 - 2 nu)), eq. (1).
-inline double lame_lambda(double E, double nu) { return E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)); }
+inline double lame_lambda(double E, double nu) {
+  return E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+}
 
 /// Throws InputError naming `where` and the parameter when m is not physical.
 inline void validate_material(const Material& m, const std::string& where,
@@ -116,9 +120,15 @@ class MaterialField {
     }
   }
 
-  VectorX youngs_moduli() const { return collect([](const Material& m) { return m.youngs_modulus; }); }
-  VectorX poisson_ratios() const { return collect([](const Material& m) { return m.poisson_ratio; }); }
-  VectorX densities() const { return collect([](const Material& m) { return m.density; }); }
+  VectorX youngs_moduli() const {
+    return collect([](const Material& m) { return m.youngs_modulus; });
+  }
+  VectorX poisson_ratios() const {
+    return collect([](const Material& m) { return m.poisson_ratio; });
+  }
+  VectorX densities() const {
+    return collect([](const Material& m) { return m.density; });
+  }
   VectorX mu() const {
     return collect([](const Material& m) { return lame_mu(m.youngs_modulus, m.poisson_ratio); });
   }
@@ -155,8 +165,8 @@ class MaterialField {
   template <int Dim>
   void check_mesh(const SimplicialMesh<Dim>& mesh) const {
     if (mesh.num_elements() != size())
-      throw InputError("material field has " + std::to_string(size()) +
-                       " elements, the mesh has " + std::to_string(mesh.num_elements()));
+      throw InputError("material field has " + std::to_string(size()) + " elements, the mesh has " +
+                       std::to_string(mesh.num_elements()));
   }
   std::vector<Material> mat_;
 };

@@ -46,9 +46,9 @@ class SimplicialMesh {
  public:
   static constexpr int kDim = Dim;
   static constexpr int kNodesPerElement = Dim + 1;
-  using Positions = VertexMatrix<Dim>;  ///< #V by Dim
-  using Elements = ElementMatrix<Dim>;  ///< #E by Dim+1
-  using Facets = FacetMatrix<Dim>;      ///< #F by Dim
+  using Positions = VertexMatrix<Dim>;                         ///< #V by Dim
+  using Elements = ElementMatrix<Dim>;                         ///< #E by Dim+1
+  using Facets = FacetMatrix<Dim>;                             ///< #F by Dim
   using ShapeGradients = Eigen::Matrix<double, Dim, Dim + 1>;  ///< column a = grad N_a
   using Box = Eigen::AlignedBox<double, Dim>;
 
@@ -154,9 +154,7 @@ class SimplicialMesh {
   }
 
  private:
-  std::string where_element(Index e) const {
-    return "element " + std::to_string(e);
-  }
+  std::string where_element(Index e) const { return "element " + std::to_string(e); }
   [[noreturn]] void fail_element(Index e, const std::string& what) const {
     throw InputError(where_element(e) + ": " + what, source_.file, source_.line_of_element(e));
   }
@@ -183,7 +181,8 @@ class SimplicialMesh {
       }
       Mat<Dim> Dm;
       double lsum = 0;
-      for (int a = 1; a <= Dim; ++a) Dm.col(a - 1) = (X_.row(T_(e, a)) - X_.row(T_(e, 0))).transpose();
+      for (int a = 1; a <= Dim; ++a)
+        Dm.col(a - 1) = (X_.row(T_(e, a)) - X_.row(T_(e, 0))).transpose();
       for (int a = 0; a <= Dim; ++a)
         for (int b = a + 1; b <= Dim; ++b) lsum += (X_.row(T_(e, a)) - X_.row(T_(e, b))).norm();
       const double lmean = lsum / (Dim * (Dim + 1) / 2);
@@ -192,8 +191,8 @@ class SimplicialMesh {
       if (!(std::abs(det) > tol * scale)) {
         std::ostringstream os;
         os << "degenerate rest element: |det Dm| = " << std::abs(det)
-           << " is below the relative tolerance " << tol << " x (mean edge length)^" << Dim
-           << " = " << tol * scale;
+           << " is below the relative tolerance " << tol << " x (mean edge length)^" << Dim << " = "
+           << tol * scale;
         fail_element(e, os.str());
       }
       if (det < 0) {
