@@ -22,7 +22,7 @@ def main(stats_path: str, png_path: str) -> None:
     ax.plot(t, umax, "--", label="max |displacement|")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("[m]")
-    ax.set_title("diffphd demo: three-segment cantilever (middle 10x stiffer) under gravity")
+    ax.set_title("three-segment cantilever (middle 10x stiffer) under gravity", fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()

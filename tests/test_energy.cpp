@@ -11,41 +11,12 @@
 #include <vector>
 
 #include "diffphd/energy/energy.hpp"
+#include "support/energy_test_utils.hpp"
 
 namespace {
 
 using namespace diffphd;
-
-template <int Dim>
-using MatD = Eigen::Matrix<double, Dim, Dim>;
-template <int Dim>
-using VecD = Eigen::Matrix<double, Dim, 1>;
-template <int Dim>
-using DiffD = Eigen::Matrix<double, Dim * Dim, Dim * Dim>;
-
-template <int Dim>
-MatD<Dim> random_rotation(std::mt19937& rng) {
-  std::normal_distribution<double> n(0.0, 1.0);
-  MatD<Dim> A;
-  for (int i = 0; i < Dim * Dim; ++i) A.data()[i] = n(rng);
-  Eigen::HouseholderQR<MatD<Dim>> qr(A);
-  MatD<Dim> Q = qr.householderQ();
-  if (Q.determinant() < 0) Q.col(0) *= -1.0;
-  return Q;
-}
-
-template <int Dim>
-MatD<Dim> with_stretches(std::mt19937& rng, const VecD<Dim>& s) {
-  return random_rotation<Dim>(rng) * s.asDiagonal() * random_rotation<Dim>(rng).transpose();
-}
-
-template <int Dim>
-VecD<Dim> take(double a, double b, double c) {
-  VecD<Dim> v;
-  const double all[3] = {a, b, c};
-  for (int i = 0; i < Dim; ++i) v(i) = all[i];
-  return v;
-}
+using namespace diffphd::test;
 
 /// The deformation families of the tests.
 enum class Family { NearIdentity, LargeStretch, Compression, Inverted };
@@ -85,24 +56,6 @@ const char* family_name(Family f) {
     default:
       return "inverted";
   }
-}
-
-template <int Dim>
-Eigen::Matrix<double, Dim * Dim, 1> vec(const MatD<Dim>& A) {
-  return Eigen::Map<const Eigen::Matrix<double, Dim * Dim, 1>>(A.data());
-}
-
-/// Central finite differences of vec(proj(F)) in vec(F), step h.
-template <int Dim, class Proj>
-DiffD<Dim> fd_differential(const MatD<Dim>& F, Proj proj, double h = 1e-6) {
-  DiffD<Dim> D;
-  for (int b = 0; b < Dim * Dim; ++b) {
-    MatD<Dim> Fp = F, Fm = F;
-    Fp.data()[b] += h;
-    Fm.data()[b] -= h;
-    D.col(b) = (vec<Dim>(proj(Fp)) - vec<Dim>(proj(Fm))) / (2.0 * h);
-  }
-  return D;
 }
 
 double rel_err(const Eigen::MatrixXd& A, const Eigen::MatrixXd& B) {

@@ -10,10 +10,12 @@
 
 #include "diffphd/energy/energy.hpp"
 #include "diffphd/energy/stretch_energy.hpp"
+#include "support/energy_test_utils.hpp"
 
 namespace {
 
 using namespace diffphd;
+using namespace diffphd::test;
 
 /// The Neo-Hookean density, written once.
 struct NeoHookeanDensity {
@@ -50,32 +52,6 @@ struct HenckyDensity {
     return T(m.mu_bar) * sq + T(0.5 * m.lambda_bar) * L * L;
   }
 };
-
-template <int Dim>
-using MatD = Eigen::Matrix<double, Dim, Dim>;
-template <int Dim>
-using VecD = Eigen::Matrix<double, Dim, 1>;
-template <int Dim>
-using DiffD = Eigen::Matrix<double, Dim * Dim, Dim * Dim>;
-
-template <int Dim>
-MatD<Dim> random_rotation(std::mt19937& rng) {
-  std::normal_distribution<double> n(0.0, 1.0);
-  MatD<Dim> A;
-  for (int i = 0; i < Dim * Dim; ++i) A.data()[i] = n(rng);
-  Eigen::HouseholderQR<MatD<Dim>> qr(A);
-  MatD<Dim> Q = qr.householderQ();
-  if (Q.determinant() < 0) Q.col(0) *= -1.0;
-  return Q;
-}
-
-template <int Dim>
-MatD<Dim> with_stretches(std::mt19937& rng, double a, double b, double c) {
-  const double all[3] = {a, b, c};
-  VecD<Dim> s;
-  for (int i = 0; i < Dim; ++i) s(i) = all[i];
-  return random_rotation<Dim>(rng) * s.asDiagonal() * random_rotation<Dim>(rng).transpose();
-}
 
 template <int Dim>
 std::vector<MatD<Dim>> test_deformations(std::mt19937& rng) {
@@ -185,17 +161,8 @@ TEMPLATE_TEST_CASE_SIG("A new density (Hencky) gets a correct prox differential 
     CHECK((g + kMeans.k_bar * (s - sigma)).norm() < 1e-12);
     // Differential against central differences.
     const DiffD<Dim> D = T::differential<double, Dim>(F, kParams, kMeans);
-    DiffD<Dim> Dfd;
-    const double h = 1e-6;
-    for (int b = 0; b < Dim * Dim; ++b) {
-      MatD<Dim> Fp = F, Fm = F;
-      Fp.data()[b] += h;
-      Fm.data()[b] -= h;
-      const MatD<Dim> d = (T::project<double, Dim>(Fp, kParams, kMeans) -
-                           T::project<double, Dim>(Fm, kParams, kMeans)) /
-                          (2 * h);
-      Dfd.col(b) = Eigen::Map<const Eigen::Matrix<double, Dim * Dim, 1>>(d.data());
-    }
+    const DiffD<Dim> Dfd = fd_differential<Dim>(
+        F, [](const MatD<Dim>& G) { return T::project<double, Dim>(G, kParams, kMeans); });
     CHECK((D - Dfd).norm() < 1e-6 * std::max(1.0, Dfd.norm()));
   }
 }

@@ -5,66 +5,13 @@
 
 #include <diffphd/core/mesh.hpp>
 
+#include "support/test_meshes.hpp"
+
 using namespace diffphd;
-
-namespace {
-
-// A structured grid of n^Dim cells over [0,1]^Dim, each square split into 2 triangles or each
-// cube into the 6 Kuhn tetrahedra (all positively oriented), then jittered by `jitter` of a
-// cell so that elements are irregular.
-template <int Dim>
-SimplicialMesh<Dim> grid(int n, double jitter, unsigned seed = 1) {
-  const int m = n + 1;
-  const int nv = Dim == 2 ? m * m : m * m * m;
-  typename SimplicialMesh<Dim>::Positions X(nv, Dim);
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-jitter / n, jitter / n);
-  auto id = [&](int i, int j, int k) { return i + m * (j + m * k); };
-  for (int k = 0; k < (Dim == 3 ? m : 1); ++k)
-    for (int j = 0; j < m; ++j)
-      for (int i = 0; i < m; ++i) {
-        const int v = id(i, j, k);
-        X(v, 0) = double(i) / n + ((i > 0 && i < n) ? u(rng) : 0);
-        X(v, 1) = double(j) / n + ((j > 0 && j < n) ? u(rng) : 0);
-        if (Dim == 3) X(v, 2) = double(k) / n + ((k > 0 && k < n) ? u(rng) : 0);
-      }
-  std::vector<std::array<int, Dim + 1>> els;
-  for (int k = 0; k < (Dim == 3 ? n : 1); ++k)
-    for (int j = 0; j < n; ++j)
-      for (int i = 0; i < n; ++i) {
-        if constexpr (Dim == 2) {
-          els.push_back({id(i, j, 0), id(i + 1, j, 0), id(i + 1, j + 1, 0)});
-          els.push_back({id(i, j, 0), id(i + 1, j + 1, 0), id(i, j + 1, 0)});
-        } else {
-          // Kuhn split: paths from corner 000 to 111 through the 6 axis permutations.
-          const int perms[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2},
-                                   {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
-          for (auto& p : perms) {
-            int c[3] = {i, j, k};
-            std::array<int, 4> t;
-            t[0] = id(c[0], c[1], c[2]);
-            for (int s = 0; s < 3; ++s) {
-              ++c[p[s]];
-              t[s + 1] = id(c[0], c[1], c[2]);
-            }
-            // Orientation of the path simplex is the sign of the permutation.
-            const bool odd =
-                (p[0] == 0 && p[1] == 2) || (p[0] == 1 && p[1] == 0) || (p[0] == 2 && p[1] == 1);
-            if (odd) std::swap(t[1], t[2]);
-            els.push_back(t);
-          }
-        }
-      }
-  typename SimplicialMesh<Dim>::Elements T(static_cast<int>(els.size()), Dim + 1);
-  for (size_t e = 0; e < els.size(); ++e)
-    for (int a = 0; a <= Dim; ++a) T(static_cast<int>(e), a) = els[e][a];
-  return SimplicialMesh<Dim>(X, T);
-}
-
-}  // namespace
+using diffphd::test::grid_mesh;
 
 TEMPLATE_TEST_CASE_SIG("rest volumes sum to the domain volume", "[mesh]", ((int Dim), Dim), 2, 3) {
-  const auto mesh = grid<Dim>(4, 0.2);
+  const auto mesh = grid_mesh<Dim>(4, /*size=*/1.0, /*jitter=*/0.2);
   CHECK(mesh.total_volume() == Approx(1.0).epsilon(1e-12));
   CHECK(mesh.rest_volumes().minCoeff() > 0);
   CHECK(mesh.min_quality() > 0.1);
@@ -73,7 +20,7 @@ TEMPLATE_TEST_CASE_SIG("rest volumes sum to the domain volume", "[mesh]", ((int 
 
 TEMPLATE_TEST_CASE_SIG("G_e q reproduces F exactly for affine motions", "[mesh]", ((int Dim), Dim),
                        2, 3) {
-  const auto mesh = grid<Dim>(3, 0.25);
+  const auto mesh = grid_mesh<Dim>(3, /*size=*/1.0, /*jitter=*/0.25);
   std::mt19937 rng(7);
   std::normal_distribution<double> n01;
   Mat<Dim> F;
@@ -102,7 +49,7 @@ TEMPLATE_TEST_CASE_SIG("G_e q reproduces F exactly for affine motions", "[mesh]"
 }
 
 TEMPLATE_TEST_CASE_SIG("lumped masses sum to the total mass", "[mesh]", ((int Dim), Dim), 2, 3) {
-  const auto mesh = grid<Dim>(3, 0.2);
+  const auto mesh = grid_mesh<Dim>(3, /*size=*/1.0, /*jitter=*/0.2);
   VectorX rho(mesh.num_elements());
   for (Index e = 0; e < mesh.num_elements(); ++e) rho[e] = 100.0 + 900.0 * (e % 3);
   const VectorX m = mesh.lumped_mass(rho);
@@ -112,7 +59,7 @@ TEMPLATE_TEST_CASE_SIG("lumped masses sum to the total mass", "[mesh]", ((int Di
 }
 
 TEMPLATE_TEST_CASE_SIG("boundary facets are closed and outward", "[mesh]", ((int Dim), Dim), 2, 3) {
-  const auto mesh = grid<Dim>(3, 0.2);
+  const auto mesh = grid_mesh<Dim>(3, /*size=*/1.0, /*jitter=*/0.2);
   const auto& B = mesh.boundary_facets();
   const auto& X = mesh.rest_positions();
   // Divergence theorem: sum over facets of (centroid . outward normal) * measure / Dim = volume.

@@ -13,67 +13,11 @@
 #include <diffphd/core/mesh.hpp>
 #include <diffphd/linalg/pd_system.hpp>
 
-// ---- local structured-grid mesh (Kuhn split), independent of io/generators.hpp -------------
-namespace {
-
-/// Grid of n^Dim cells on [0, size]^Dim, cut into Dim! simplices per cell (Kuhn split: one
-/// simplex per axis order, walking from the cell's low corner to its high corner).
-template <int Dim>
-diffphd::SimplicialMesh<Dim> grid_mesh(int n, double size = 1.0) {
-  const int m = n + 1;
-  const int nv = Dim == 2 ? m * m : m * m * m;
-  diffphd::VertexMatrix<Dim> X(nv, Dim);
-  auto vid = [&](const std::array<int, 3>& c) {
-    return Dim == 2 ? c[0] + m * c[1] : c[0] + m * (c[1] + m * c[2]);
-  };
-  for (int v = 0; v < nv; ++v) {
-    int r = v;
-    for (int a = 0; a < Dim; ++a, r /= m) X(v, a) = size * (r % m) / n;
-  }
-  std::vector<std::array<int, Dim + 1>> tets;
-  const int ncell = Dim == 2 ? n * n : n * n * n;
-  std::array<int, Dim> order;
-  for (int cell = 0; cell < ncell; ++cell) {
-    std::array<int, 3> base{0, 0, 0};
-    int r = cell;
-    for (int a = 0; a < Dim; ++a, r /= n) base[a] = r % n;
-    for (int a = 0; a < Dim; ++a) order[a] = a;
-    do {
-      std::array<int, Dim + 1> t;
-      std::array<int, 3> c = base;
-      t[0] = vid(c);
-      for (int s = 0; s < Dim; ++s) {
-        ++c[order[s]];
-        t[s + 1] = vid(c);
-      }
-      diffphd::Mat<Dim> D;
-      for (int s = 0; s < Dim; ++s) D.col(s) = (X.row(t[s + 1]) - X.row(t[0])).transpose();
-      if (D.determinant() < 0) std::swap(t[1], t[2]);
-      tets.push_back(t);
-    } while (std::next_permutation(order.begin(), order.end()));
-  }
-  diffphd::ElementMatrix<Dim> T(static_cast<int>(tets.size()), Dim + 1);
-  for (size_t e = 0; e < tets.size(); ++e)
-    for (int a = 0; a <= Dim; ++a) T(static_cast<int>(e), a) = tets[e][a];
-  return diffphd::SimplicialMesh<Dim>(X, T);
-}
-
-/// Two materials: E = E_soft for centroids with x < 0.5 size, E_soft * contrast elsewhere.
-template <int Dim>
-diffphd::MaterialField two_materials(const diffphd::SimplicialMesh<Dim>& mesh, double contrast,
-                                     double E_soft = 1e4, double nu = 0.3) {
-  diffphd::Material soft{E_soft, nu, 1000.0, 0};
-  diffphd::Material stiff{E_soft * contrast, nu, 1200.0, 1};
-  diffphd::MaterialField f(mesh.num_elements(), soft);
-  const double xmax = mesh.bounding_box().max()[0];
-  f.assign_slab(mesh, 0, 0.5 * xmax, 2.0 * xmax, stiff);
-  return f;
-}
-
-}  // namespace
-// ---------------------------------------------------------------------------------------------
+#include "support/test_meshes.hpp"
 
 using namespace diffphd;
+using diffphd::test::grid_mesh;
+using diffphd::test::two_materials;
 
 namespace {
 /// Dense oracle for one axis: x_F = A_FF^-1 (b_F - A_FC x_C), x_C = x_fixed_C.

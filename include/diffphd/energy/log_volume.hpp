@@ -13,18 +13,14 @@ template <class S, int Dim>
 struct LogVolumeStretchModel {
   S mu, lambda;
   DIFFPHD_HOST_DEVICE S value(const SVec<S, Dim>& s) const {
-    using std::log;
-    S L = S(0);
-    for (int i = 0; i < Dim; ++i) L += log(s(i));
+    const S L = sum_log<S, Dim>(s);
     return -mu * L + S(0.5) * lambda * L * L;
   }
   /// grad_i = (lambda L - mu) / s_i; H_ii = (mu + lambda (1 - L)) / s_i^2,
   /// H_ij = lambda / (s_i s_j).
   DIFFPHD_HOST_DEVICE void grad_hess(const SVec<S, Dim>& s, SVec<S, Dim>& g,
                                      SMat<S, Dim>& H) const {
-    using std::log;
-    S L = S(0);
-    for (int i = 0; i < Dim; ++i) L += log(s(i));
+    const S L = sum_log<S, Dim>(s);
     for (int i = 0; i < Dim; ++i) {
       const S inv = S(1) / s(i);
       g(i) = (lambda * L - mu) * inv;
@@ -33,9 +29,7 @@ struct LogVolumeStretchModel {
     }
   }
   DIFFPHD_HOST_DEVICE Eigen::Matrix<S, Dim, 2> grad_param_derivative(const SVec<S, Dim>& s) const {
-    using std::log;
-    S L = S(0);
-    for (int i = 0; i < Dim; ++i) L += log(s(i));
+    const S L = sum_log<S, Dim>(s);
     Eigen::Matrix<S, Dim, 2> G;
     for (int i = 0; i < Dim; ++i) {
       G(i, 0) = -S(1) / s(i);
@@ -67,17 +61,9 @@ struct LogVolumePolicy {
 /// Neo-Hookean and is meant to be combined with the corotated term, which supplies the rest
 /// state (docs/energies.md).
 template <ProxRouting Routing = ProxRouting::MeshMeans>
-struct LogVolumeT : StretchProxTerm<detail::LogVolumePolicy, Routing> {
-  using policy = detail::LogVolumePolicy;
+struct LogVolumeT : ModelProxTerm<detail::LogVolumePolicy, Routing> {
   static constexpr const char* name =
       Routing == ProxRouting::MeshMeans ? "log-volume" : "log-volume-per-element";
-
-  /// dp*/d(mu, lambda, k) of the routed prox parameters, Dim^2 x 3.
-  template <class S, int Dim>
-  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, 3> param_differential(
-      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
-    return detail::prox_param_differential<LogVolumeT, S, Dim>(F, p, means);
-  }
 };
 
 using LogVolume = LogVolumeT<ProxRouting::MeshMeans>;

@@ -8,23 +8,28 @@ namespace diffphd {
 
 namespace detail {
 
+/// ln J = sum_i ln s_i (s > 0), summed in index order.
+template <class S, int Dim>
+DIFFPHD_HOST_DEVICE inline S sum_log(const SVec<S, Dim>& s) {
+  using std::log;
+  S L = S(0);
+  for (int i = 0; i < Dim; ++i) L += log(s(i));
+  return L;
+}
+
 /// psi(s) = mu/2 (sum s_i^2 - d) - mu ln J + lambda/2 (ln J)^2, ln J = sum ln s_i (s > 0).
 template <class S, int Dim>
 struct NeoHookeanStretchModel {
   S mu, lambda;
   DIFFPHD_HOST_DEVICE S value(const SVec<S, Dim>& s) const {
-    using std::log;
-    S lnJ = S(0);
-    for (int i = 0; i < Dim; ++i) lnJ += log(s(i));
+    const S lnJ = sum_log<S, Dim>(s);
     return S(0.5) * mu * (s.squaredNorm() - S(Dim)) - mu * lnJ + S(0.5) * lambda * lnJ * lnJ;
   }
   /// grad_i = mu s_i + (lambda ln J - mu) / s_i;
   /// H_ii = mu + (mu + lambda (1 - ln J)) / s_i^2, H_ij = lambda / (s_i s_j).
   DIFFPHD_HOST_DEVICE void grad_hess(const SVec<S, Dim>& s, SVec<S, Dim>& g,
                                      SMat<S, Dim>& H) const {
-    using std::log;
-    S lnJ = S(0);
-    for (int i = 0; i < Dim; ++i) lnJ += log(s(i));
+    const S lnJ = sum_log<S, Dim>(s);
     for (int i = 0; i < Dim; ++i) {
       const S inv = S(1) / s(i);
       g(i) = mu * s(i) + (lambda * lnJ - mu) * inv;
@@ -34,9 +39,7 @@ struct NeoHookeanStretchModel {
   }
   /// d grad / d(mu, lambda): columns s - 1/s and ln J / s.
   DIFFPHD_HOST_DEVICE Eigen::Matrix<S, Dim, 2> grad_param_derivative(const SVec<S, Dim>& s) const {
-    using std::log;
-    S lnJ = S(0);
-    for (int i = 0; i < Dim; ++i) lnJ += log(s(i));
+    const S lnJ = sum_log<S, Dim>(s);
     Eigen::Matrix<S, Dim, 2> G;
     for (int i = 0; i < Dim; ++i) {
       G(i, 0) = s(i) - S(1) / s(i);
@@ -56,30 +59,41 @@ struct NeoHookeanPolicy {
   }
 };
 
-/// Shared by the terms with a hand-written model: dp*/d(mu, lambda, k) of the routed prox
-/// parameters, ds* = -(H_psi + k I)^{-1} d(grad), d grad/dk = s* - sigma_F.
-template <class Term, class S, int Dim>
-DIFFPHD_HOST_DEVICE inline Eigen::Matrix<S, Dim * Dim, 3> prox_param_differential(
-    const SMat<S, Dim>& F, const ElementParams& p, const ProxMeans& means) {
-  SMat<S, Dim> U, V;
-  SVec<S, Dim> sigma;
-  svd_rv<S, Dim>(F, U, sigma, V);
-  const SVec<S, Dim> s = Term::template stretches<S, Dim>(sigma, p, means);
-  const ProxParams q = Term::prox_params(p, means);
-  const auto model = Term::policy::template model<S, Dim>(q, Term::routed_means(p, means));
-  const SMat<S, Dim> Hinv = small_inverse<S, Dim>(Term::template prox_hessian<S, Dim>(s, p, means));
-  Eigen::Matrix<S, Dim, 3> G;
-  G.template leftCols<2>() = model.grad_param_derivative(s);
-  G.col(2) = s - sigma;
-  Eigen::Matrix<S, Dim * Dim, 3> out;
-  for (int c = 0; c < 3; ++c) {
-    const SVec<S, Dim> ds = -(Hinv * G.col(c));
-    out.col(c) = stretch_direction<S, Dim>(U, ds, V);
-  }
-  return out;
-}
-
 }  // namespace detail
+
+/// \brief A StretchProxTerm whose density is hand-written (NeoHookeanProx, LogVolume): its model
+/// also provides `Eigen::Matrix<S, Dim, 2> grad_param_derivative(const SVec&) const`, the
+/// derivative of grad psi in (mu, lambda), which gives the parameter differential.
+template <class Policy, ProxRouting Routing>
+struct ModelProxTerm : StretchProxTerm<Policy, Routing> {
+  using policy = Policy;
+
+  /// dp*/d(mu, lambda, k) of the routed prox parameters (mu_bar, lambda_bar, k_bar under
+  /// MeshMeans; under PerElement chain k_e = weight(mu_e, lambda_e) yourself), Dim^2 x 3:
+  /// ds* = -(H_psi + k I)^{-1} d(grad), d grad/dk = s* - sigma_F.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, 3> param_differential(
+      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
+    using Term = ModelProxTerm;
+    detail::SMat<S, Dim> U, V;
+    detail::SVec<S, Dim> sigma;
+    svd_rv<S, Dim>(F, U, sigma, V);
+    const detail::SVec<S, Dim> s = Term::template stretches<S, Dim>(sigma, p, means);
+    const ProxParams q = Term::prox_params(p, means);
+    const auto model = Policy::template model<S, Dim>(q, Term::routed_means(p, means));
+    const detail::SMat<S, Dim> Hinv =
+        detail::small_inverse<S, Dim>(Term::template prox_hessian<S, Dim>(s, p, means));
+    Eigen::Matrix<S, Dim, 3> G;
+    G.template leftCols<2>() = model.grad_param_derivative(s);
+    G.col(2) = s - sigma;
+    Eigen::Matrix<S, Dim * Dim, 3> out;
+    for (int c = 0; c < 3; ++c) {
+      const detail::SVec<S, Dim> ds = -(Hinv * G.col(c));
+      out.col(c) = detail::stretch_direction<S, Dim>(U, ds, V);
+    }
+    return out;
+  }
+};
 
 /// \brief Neo-Hookean prox PD term (Sec. 4.1, eqs. 13-15), weight w = 2 mu + lambda.
 ///
@@ -93,18 +107,9 @@ DIFFPHD_HOST_DEVICE inline Eigen::Matrix<S, Dim * Dim, 3> prox_param_differentia
 ///
 /// \tparam Routing ProxRouting::MeshMeans (default; the paper) or PerElement.
 template <ProxRouting Routing = ProxRouting::MeshMeans>
-struct NeoHookeanProxT : StretchProxTerm<detail::NeoHookeanPolicy, Routing> {
-  using policy = detail::NeoHookeanPolicy;
+struct NeoHookeanProxT : ModelProxTerm<detail::NeoHookeanPolicy, Routing> {
   static constexpr const char* name =
       Routing == ProxRouting::MeshMeans ? "neo-hookean-prox" : "neo-hookean-prox-per-element";
-
-  /// dp*/d(mu, lambda, k) of the routed prox parameters (mu_bar, lambda_bar, k_bar under
-  /// MeshMeans; under PerElement chain k_e = 2 mu_e + lambda_e yourself), Dim^2 x 3.
-  template <class S, int Dim>
-  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, 3> param_differential(
-      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
-    return detail::prox_param_differential<NeoHookeanProxT, S, Dim>(F, p, means);
-  }
 };
 
 using NeoHookeanProx = NeoHookeanProxT<ProxRouting::MeshMeans>;
