@@ -1,0 +1,422 @@
+// Tests of diffphd/io/scene.hpp and diffphd/io/plant.hpp: every shipped scene loads and builds
+// (mesh, materials, selections), the contrast hook, every class of bad input names the scene
+// file and the JSON path, and the branching plant is one connected conforming component.
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <numeric>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <diffphd/io/plant.hpp>
+#include <diffphd/io/scene.hpp>
+
+using Catch::Contains;
+using namespace diffphd;
+
+namespace {
+
+const std::string kScenes = std::string(DIFFPHD_SOURCE_DIR) + "/scenes/";
+const std::string kBad = std::string(DIFFPHD_SOURCE_DIR) + "/tests/data/scenes/";
+
+/// Number of connected components of the element graph (elements joined through shared
+/// facets).
+template <int Dim>
+int facet_components(const SimplicialMesh<Dim>& mesh) {
+  const Index ne = mesh.num_elements();
+  std::vector<Index> parent(ne);
+  std::iota(parent.begin(), parent.end(), 0);
+  auto find = [&](Index a) {
+    while (parent[a] != a) a = parent[a] = parent[parent[a]];
+    return a;
+  };
+  std::map<std::array<Index, Dim>, Index> first;
+  for (Index e = 0; e < ne; ++e)
+    for (int skip = 0; skip <= Dim; ++skip) {
+      std::array<Index, Dim> f;
+      for (int a = 0, k = 0; a <= Dim; ++a)
+        if (a != skip) f[k++] = mesh.elements()(e, a);
+      std::sort(f.begin(), f.end());
+      auto [it, inserted] = first.emplace(f, e);
+      if (!inserted) parent[find(e)] = find(it->second);
+    }
+  std::set<Index> roots;
+  for (Index e = 0; e < ne; ++e) roots.insert(find(e));
+  return static_cast<int>(roots.size());
+}
+
+/// Builds everything a scene describes; checks that every selection is non-empty.
+struct Built {
+  io::SceneSpec scene;
+  io::MeshWithRegions<3> mesh;
+  MaterialField materials;
+};
+Built build3(const std::string& file, std::optional<double> contrast = {}) {
+  Built b;
+  b.scene = io::load_scene(file, contrast);
+  REQUIRE(io::scene_dimension(b.scene) == 3);
+  b.mesh = io::build_mesh_with_regions<3>(b.scene);
+  b.materials = io::build_materials<3>(b.scene, b.mesh.mesh, b.mesh.region);
+  REQUIRE(b.materials.size() == b.mesh.mesh.num_elements());
+  for (const auto& f : b.scene.fixed) CHECK(!io::select_vertices(f.vertices, b.mesh.mesh).empty());
+  for (const auto& d : b.scene.drivers)
+    CHECK(!io::select_vertices(d.vertices, b.mesh.mesh).empty());
+  for (const auto& f : b.scene.forces) CHECK(!io::select_vertices(f.vertices, b.mesh.mesh).empty());
+  CHECK(b.scene.h > 0);
+  CHECK(b.scene.h <= 1.0 / 60.0 + 1e-12);
+  CHECK(b.scene.output.frames > 0);
+  return b;
+}
+
+std::set<int> labels(const MaterialField& m) {
+  const auto r = m.regions();
+  return std::set<int>(r.begin(), r.end());
+}
+
+}  // namespace
+
+TEST_CASE("shipped scene: demo", "[scene]") {
+  const Built b = build3(kScenes + "demo.json");
+  CHECK(b.scene.output.name == "demo");
+  CHECK(b.mesh.mesh.num_elements() == 15 * 3 * 3 * 6);
+  CHECK(labels(b.materials) == std::set<int>{0, 1});
+  CHECK(b.materials.stiffness_contrast() == Approx(10));
+  CHECK(b.scene.gravity[1] == Approx(-9.81));
+  const auto mask = io::fixed_mask<3>(b.scene, b.mesh.mesh);
+  CHECK(mask.count() == 3 * 16);  // the 4 x 4 vertices of the face x = 0, all axes
+  CHECK(b.scene.output.frames == 60);
+}
+
+TEST_CASE("shipped scene: cantilever_twist and cantilever_axial", "[scene]") {
+  const Built t = build3(kScenes + "cantilever_twist.json");
+  CHECK(t.materials.stiffness_contrast() == Approx(10));
+  REQUIRE(t.scene.drivers.size() == 1);
+  const auto& d = t.scene.drivers[0];
+  CHECK(d.kind == io::DriverSpec::Kind::Twist);
+  CHECK(d.axis == 0);
+  CHECK(d.release_at_stop);
+  const auto tip = io::select_vertices(d.vertices, t.mesh.mesh);
+  CHECK(tip.size() == 16);
+  // The segments hold a third of the elements each.
+  const auto r = t.materials.regions();
+  CHECK(std::count(r.begin(), r.end(), 1) == 10 * 3 * 3 * 6);
+  // A quarter turn at stop, frozen afterwards; the centre stays put.
+  VertexMatrix<3> X0(tip.size(), 3);
+  for (size_t i = 0; i < tip.size(); ++i) X0.row(i) = t.mesh.mesh.rest_positions().row(tip[i]);
+  const VertexMatrix<3> X1 = io::driver_positions<3>(d, X0, 5.0);
+  for (Index i = 0; i < X0.rows(); ++i) {
+    CHECK(X1(i, 0) == Approx(1.0));
+    CHECK(X1(i, 1) - 0.05 == Approx(-(X0(i, 2) - 0.05)).margin(1e-12));
+    CHECK(X1(i, 2) - 0.05 == Approx(X0(i, 1) - 0.05).margin(1e-12));
+  }
+  CHECK(io::driver_positions<3>(d, X0, 0.0).isApprox(X0));
+
+  const Built a = build3(kScenes + "cantilever_axial.json");
+  REQUIRE(a.scene.forces.size() == 1);
+  const auto end = io::select_vertices(a.scene.forces[0].vertices, a.mesh.mesh);
+  const VectorX f = io::per_vertex_force(a.scene.forces[0], static_cast<Index>(end.size()));
+  CHECK(f[0] * end.size() == Approx(100.0));
+  CHECK(a.scene.solver.alpha == Approx(20.0));
+}
+
+TEST_CASE("shipped scene: armadillo_twist with the contrast hook", "[scene]") {
+  const Built b10 = build3(kScenes + "armadillo_twist.json");
+  CHECK(b10.mesh.mesh.num_elements() == 27966);
+  CHECK(b10.scene.contrast.factor == 10);
+  CHECK(b10.materials.stiffness_contrast() == Approx(10));
+  CHECK(labels(b10.materials) == std::set<int>{1, 2, 3});  // three height slabs cover it all
+
+  const Built b100 = build3(kScenes + "armadillo_twist.json", 100.0);
+  const VectorX E = b100.materials.youngs_moduli();
+  CHECK(E.maxCoeff() / E.minCoeff() == Approx(100));
+  CHECK(E.minCoeff() == Approx(5e5));
+  // The stiff elements are exactly the torso slab's.
+  const auto r = b100.materials.regions();
+  for (Index e = 0; e < E.size(); ++e) CHECK((E[e] > 1e6) == (r[e] == 2));
+
+  const Built b1000 = build3(kScenes + "armadillo_twist.json", 1000.0);
+  CHECK(b1000.materials.stiffness_contrast() == Approx(1000));
+}
+
+TEST_CASE("shipped scene: bunny_tumble", "[scene]") {
+  const Built b = build3(kScenes + "bunny_tumble.json");
+  CHECK(b.mesh.mesh.num_elements() == 9549);
+  CHECK(b.materials.stiffness_contrast() == Approx(100));
+  const auto r = b.materials.regions();
+  const auto core = std::count(r.begin(), r.end(), 1);
+  CHECK(core > 100);
+  CHECK(core < b.mesh.mesh.num_elements() / 2);
+  CHECK(b.scene.fixed.empty());
+  // Initial velocity: linear part is the mass-weighted mean, rotation about the centre of mass.
+  const VertexMatrix<3> V = io::initial_velocities<3>(b.scene, b.mesh.mesh, b.materials);
+  const VectorX m = b.mesh.mesh.lumped_mass(b.materials.densities());
+  const Eigen::Vector3d mean = V.transpose() * m / m.sum();
+  CHECK((mean - Eigen::Vector3d(0.5, 3.0, 0.0)).norm() < 1e-9);
+  const Eigen::Vector3d c = b.mesh.mesh.rest_positions().transpose() * m / m.sum();
+  const Eigen::Vector3d x = b.mesh.mesh.rest_positions().row(0).transpose();
+  const Eigen::Vector3d expect =
+      Eigen::Vector3d(0.5, 3.0, 0.0) + Eigen::Vector3d(0, 2, 6).cross(x - c);
+  CHECK((V.row(0).transpose() - expect).norm() < 1e-12);
+}
+
+TEST_CASE("shipped scene: plant_swing", "[scene][plant]") {
+  const Built b = build3(kScenes + "plant_swing.json");
+  CHECK(facet_components(b.mesh.mesh) == 1);
+  CHECK(b.materials.stiffness_contrast() == Approx(10));
+  CHECK(labels(b.materials) == std::set<int>{0, 1});
+  const auto base = io::select_vertices(b.scene.fixed[0].vertices, b.mesh.mesh);
+  for (Index v : base) CHECK(b.mesh.mesh.rest_positions()(v, 1) == 0.0);
+  CHECK(base.size() >= 9);
+  CHECK(b.scene.forces[0].stop == Approx(0.25));
+}
+
+TEST_CASE("every shipped scene loads", "[scene]") {
+  for (const char* name : {"demo", "cantilever_twist", "cantilever_axial", "armadillo_twist",
+                           "bunny_tumble", "plant_swing"}) {
+    INFO(name);
+    const io::SceneSpec s = io::load_scene(kScenes + name + ".json");
+    CHECK(s.output.name == name);
+    CHECK(!s.description.empty());
+    CHECK(io::scene_dimension(s) == 3);
+  }
+}
+
+TEST_CASE("scene: defaults and parsed values", "[scene]") {
+  const io::SceneSpec s = io::load_scene(kBad + "good_small.json");
+  CHECK(s.output.name == "good_small");
+  CHECK(s.output.substeps == 1);
+  CHECK(s.solver.energy == io::EnergyKind::Corotated);
+  CHECK(s.solver.routing == io::Routing::Uniform);
+  CHECK(s.solver.anderson_window == -1);
+  CHECK(s.contrast.factor == 1);
+  REQUIRE(s.regions.size() == 3);
+  CHECK(s.regions[1].material.youngs_modulus == 1e5);  // inherited from the default material
+  CHECK(s.regions[1].material.density == 900);
+  CHECK(s.drivers[0].release_at_stop == false);
+  const auto mesh = io::build_mesh<3>(s);
+  const MaterialField m = io::build_materials<3>(s, mesh);
+  // regions[2] (elements 0..2) overrides regions[0] there: later assignments win.
+  for (Index e = 0; e < 3; ++e) CHECK(m[e].region == 3);
+  CHECK_THROWS_WITH(io::build_mesh<2>(s), Contains("the scene is 3D"));
+  CHECK_THROWS_WITH(io::load_scene(kBad + "good_small.json", 10.0),
+                    Contains("no \"contrast\" entry"));
+}
+
+TEST_CASE("scene: bad input names the file and the JSON path", "[scene][errors]") {
+  struct Case {
+    const char* file;
+    std::vector<const char*> expect;
+  };
+  const std::vector<Case> cases = {
+      {"bad_youngs", {"regions[2].material.youngs_modulus: must be > 0"}},
+      {"bad_unknown_key",
+       {"unknown key \"youngs_modulis\" in regions[2].material",
+        "(did you mean \"youngs_modulus\"?)"}},
+      {"bad_unknown_top", {"unknown key \"colliders\" in the top level"}},
+      {"bad_type", {"time.frames: expected an integer, found a string"}},
+      {"bad_type_vector", {"gravity[1]: expected a number, found a string"}},
+      {"bad_missing_time", {"missing required key \"time\""}},
+      {"bad_missing_youngs", {"material: missing required key \"youngs_modulus\""}},
+      {"bad_poisson", {"material.poisson_ratio: must lie in (-1, 0.5), found 0.5"}},
+      {"bad_density", {"regions[0].material.density: must be > 0, found 0"}},
+      {"bad_h", {"time.h: must be > 0"}},
+      {"bad_frames", {"time.frames: must be > 0"}},
+      {"bad_axis", {"fixed[0].vertices.slab.axis: axis must be 0, 1 or 2, found 3"}},
+      {"bad_axis_2d", {"fixed[0].vertices.slab.axis: axis 2 does not exist in a 2D scene"}},
+      {"bad_energy", {"solver.energy: unknown energy \"neo-hooke\""}},
+      {"bad_routing", {"solver.routing: unknown routing \"stiffness\""}},
+      {"bad_mesh_missing", {"mesh.file: mesh file not found: ", "nowhere/missing.node"}},
+      {"bad_gravity_size", {"gravity: expected 3 numbers"}},
+      {"bad_contrast_region", {"contrast.regions[0]: no region is named \"middle\""}},
+      {"bad_driver_window", {"drivers[0].stop: must be > start = 2"}},
+      {"bad_generator", {"mesh.generator: unknown generator \"cube\""}},
+      {"bad_two_selectors", {"fixed[0].vertices: give only one of"}},
+      {"bad_json", {"invalid JSON"}},
+      {"bad_duplicate_key", {"duplicate key \"h\" in an object under \"time\""}},
+      {"bad_mesh_region_type", {"regions[0].mesh_region: expected an integer, found 1.5"}},
+  };
+  for (const Case& c : cases) {
+    const std::string path = kBad + c.file + ".json";
+    INFO(path);
+    try {
+      io::load_scene(path);
+      FAIL("no InputError for " << path);
+    } catch (const InputError& e) {
+      const std::string what = e.what();
+      INFO(what);
+      CHECK(e.file() == path);
+      CHECK(what.rfind(path + ": ", 0) == 0);
+      for (const char* s : c.expect) CHECK_THAT(what, Contains(s));
+    }
+  }
+  SECTION("the resolved mesh path, not the one written") {
+    CHECK_THROWS_WITH(io::load_scene(kBad + "bad_mesh_missing.json"),
+                      Contains("/tests/data/nowhere/missing.node"));
+  }
+  SECTION("a missing scene file") {
+    CHECK_THROWS_AS(io::load_scene(kBad + "no_such_scene.json"), InputError);
+  }
+  SECTION("a non-positive --contrast") {
+    CHECK_THROWS_WITH(io::load_scene(kScenes + "demo.json", 0.0), Contains("--contrast"));
+  }
+}
+
+TEST_CASE("scene: build-time errors name the file and the JSON path", "[scene][errors]") {
+  auto check = [](const char* file, auto&& fn, const char* expect) {
+    const std::string path = kBad + file + ".json";
+    INFO(path);
+    const io::SceneSpec s = io::load_scene(path);
+    const auto mesh = io::build_mesh<3>(s);
+    try {
+      fn(s, mesh);
+      FAIL("no InputError");
+    } catch (const InputError& e) {
+      INFO(e.what());
+      CHECK(e.file() == path);
+      CHECK_THAT(std::string(e.what()), Contains(expect));
+    }
+  };
+  check(
+      "empty_selector",
+      [](const io::SceneSpec& s, const SimplicialMesh<3>& m) { io::fixed_mask<3>(s, m); },
+      "fixed[0].vertices: selects no vertex");
+  check(
+      "bad_vertex_index",
+      [](const io::SceneSpec& s, const SimplicialMesh<3>& m) {
+        io::select_vertices(s.fixed[0].vertices, m);
+      },
+      "fixed[0].vertices: indices[1] = 99999 is out of range");
+  check(
+      "empty_region",
+      [](const io::SceneSpec& s, const SimplicialMesh<3>& m) { io::build_materials<3>(s, m); },
+      "regions[1]: selects no element");
+  check(
+      "bad_element_index",
+      [](const io::SceneSpec& s, const SimplicialMesh<3>& m) { io::build_materials<3>(s, m); },
+      "regions[2]: elements[2] = 100000 is out of range");
+}
+
+TEST_CASE("branching plant: one connected component, positive volumes", "[plant]") {
+  const int levels = GENERATE(1, 2, 3);
+  const int branches = GENERATE(2, 3);
+  PlantParams p;
+  p.levels = levels;
+  p.branches = branches;
+  p.trunk_radius = 0.05;
+  p.radius_ratio = 0.75;
+  p.cell_size = 0.02;
+  const PlantMesh plant = make_branching_plant(p);
+  INFO("levels " << levels << ", branches " << branches << ": " << plant.mesh.num_elements()
+                 << " tets");
+  CHECK(facet_components(plant.mesh) == 1);
+  CHECK(plant.mesh.rest_volumes().minCoeff() > 0);
+  CHECK(plant.mesh.min_quality() > 0.6);
+  int expected_branches = 1, width = 1;
+  for (int l = 0; l < levels; ++l) expected_branches += (width *= branches);
+  CHECK(static_cast<int>(plant.branches.size()) == expected_branches);
+  CHECK(static_cast<Index>(plant.level.size()) == plant.mesh.num_elements());
+  const std::set<int> lv(plant.level.begin(), plant.level.end());
+  CHECK(static_cast<int>(lv.size()) == levels + 1);
+  // Every branch tip lies in the body: some vertex within a cell of it.
+  for (const auto& b : plant.branches) {
+    double best = 1e300;
+    for (Index v = 0; v < plant.mesh.num_vertices(); ++v)
+      best = std::min(best, (plant.mesh.rest_positions().row(v).transpose() - b.tip).norm());
+    CHECK(best < std::sqrt(3.0) * p.cell_size);
+  }
+  // The base is flat at y = 0 and the volume is near the union of capsules' scale.
+  CHECK(plant.mesh.bounding_box().min()[1] == 0.0);
+}
+
+TEST_CASE("branching plant: parameters that lose a branch are errors", "[plant]") {
+  PlantParams p;
+  p.cell_size = 0.05;  // > trunk radius 0.04
+  CHECK_THROWS_WITH(make_branching_plant(p), Contains("below cell_size"));
+  p = PlantParams{};
+  p.levels = 4;
+  CHECK_THROWS_WITH(make_branching_plant(p), Contains("levels must be 1, 2 or 3"));
+}
+
+TEST_CASE("scene: a 2D scene from a file with region ids, scale and translate", "[scene]") {
+  const io::SceneSpec s = io::load_scene(kBad + "good_2d.json");
+  REQUIRE(io::scene_dimension(s) == 2);
+  CHECK(s.solver.energy == io::EnergyKind::NeoHookeanLogVolume);
+  CHECK(s.solver.routing == io::Routing::PerElementProx);
+  CHECK(s.solver.anderson_window == 0);
+  CHECK(s.solver.beta0 == Approx(0.01));
+  CHECK(s.output.substeps == 4);
+  const io::MeshWithRegions<2> m = io::build_mesh_with_regions<2>(s);
+  CHECK(m.mesh.bounding_box().min().isApprox(Vec<2>(1, 0)));
+  CHECK(m.mesh.bounding_box().max().isApprox(Vec<2>(3, 2)));
+  const MaterialField f = io::build_materials<2>(s, m.mesh, m.region);
+  CHECK(f[0].youngs_modulus == Approx(12e5));  // region 1, times the contrast 3
+  CHECK(f[1].youngs_modulus == Approx(6e5));
+  CHECK_THROWS_WITH(io::build_materials<2>(s, m.mesh),
+                    Contains("regions[0]: mesh_region: the mesh's region ids are not available"));
+  const auto mask = io::fixed_mask<2>(s, m.mesh);
+  CHECK(mask.count() == 1);
+  CHECK(mask(0, 0));
+  CHECK(io::select_vertices(s.drivers[0].vertices, m.mesh) == std::vector<Index>{2});
+  const VertexMatrix<2> V = io::initial_velocities<2>(s, m.mesh, f);
+  CHECK(V.rows() == 4);
+  // The 2D twist: a quarter of a radian per 0.25 s about (2, 1), frozen at stop = 0.5 s.
+  VertexMatrix<2> X0(1, 2);
+  X0 << 3, 1;
+  const VertexMatrix<2> X1 = io::driver_positions<2>(s.drivers[0], X0, 1.0);
+  CHECK(X1(0, 0) == Approx(2 + std::cos(0.5)));
+  CHECK(X1(0, 1) == Approx(1 + std::sin(0.5)));
+}
+
+TEST_CASE("scene: mesh_region from a TetGen region attribute", "[scene]") {
+  const io::SceneSpec s = io::load_scene(kBad + "good_file_regions.json");
+  const io::MeshWithRegions<3> m = io::build_mesh_with_regions<3>(s);
+  const MaterialField f = io::build_materials<3>(s, m.mesh, m.region);
+  CHECK(f.youngs_moduli().minCoeff() == Approx(1e6));  // every element is in region 7
+  const io::SceneSpec bad = io::load_scene(kBad + "bad_mesh_region.json");
+  const io::MeshWithRegions<3> mb = io::build_mesh_with_regions<3>(bad);
+  CHECK_THROWS_WITH(
+      io::build_materials<3>(bad, mb.mesh, mb.region),
+      Contains("regions[0]: mesh_region: no element has region id 3 (the mesh has 7)"));
+}
+
+TEST_CASE("scene: every generator builds", "[scene]") {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / "diffphd_test_scene";
+  fs::create_directories(dir);
+  const std::vector<std::pair<std::string, Index>> meshes = {
+      {R"({"generator": "box", "lo": [0, 0, 0], "hi": [1, 1, 2], "cells": [1, 1, 2]})", 12},
+      {R"({"generator": "bar", "length": 1, "width": 0.25, "height": 0.25, "cells_along_length": 4})",
+       24},
+      {R"({"generator": "sheet", "width": 1, "depth": 1, "thickness": 0.1, "cells": [2, 3]})", 36},
+      {R"({"generator": "sphere", "radius": 0.5, "resolution": 1})", 48},
+      {R"({"generator": "torus", "major_radius": 1, "minor_radius": 0.25, "ring_segments": 8,
+           "tube_resolution": 1})",
+       24 * 8},
+      {R"({"generator": "branching", "levels": 1, "branches": 2, "cell_size": 0.025})", -1},
+      {R"({"generator": "rectangle", "lo": [0, 0], "hi": [2, 1], "cells": [2, 1]})", 4},
+  };
+  for (const auto& [mesh, elements] : meshes) {
+    INFO(mesh);
+    const fs::path file = dir / "generator.json";
+    {
+      std::ofstream out(file);
+      out << R"({"mesh": )" << mesh
+          << R"(, "material": {"youngs_modulus": 1e5}, "time": {"h": 0.01, "frames": 1}})";
+    }
+    const io::SceneSpec s = io::load_scene(file.string());
+    if (io::scene_dimension(s) == 3) {
+      const auto m = io::build_mesh_with_regions<3>(s);
+      if (elements > 0) CHECK(m.mesh.num_elements() == elements);
+      CHECK(m.region.size() == static_cast<size_t>(m.mesh.num_elements()));
+      CHECK(io::build_materials<3>(s, m.mesh, m.region).size() == m.mesh.num_elements());
+    } else {
+      const auto m = io::build_mesh<2>(s);
+      CHECK(m.num_elements() == elements);
+    }
+  }
+  fs::remove_all(dir);
+}
