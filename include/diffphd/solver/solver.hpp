@@ -1,0 +1,744 @@
+#pragma once
+/// \file solver.hpp
+/// \brief Solver<Dim, Energy, Contact, Backend>: the DiffPhD forward step (Algorithm 1 of the
+/// paper without contact): inertial target eq. (3), local step, right-hand side eq. (11) with the
+/// damping terms of eq. (2), global solve with the factor of eq. (31), bounded-window Anderson
+/// acceleration eqs. (18)-(21), Dirichlet enforcement and the dual gate eq. (22).
+/// See docs/solver.md.
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Dense>
+#include <Eigen/Geometry>
+
+#include "../core/errors.hpp"
+#include "../core/material.hpp"
+#include "../core/mesh.hpp"
+#include "../core/types.hpp"
+#include "../energy/energy.hpp"
+#include "../linalg/pd_matrix.hpp"
+#include "../linalg/pd_system.hpp"
+#include "anderson.hpp"
+#include "backend.hpp"
+#include "dual_gate.hpp"
+
+namespace diffphd {
+
+/// \brief Where heterogeneity enters the PD surrogate (Sec. 4.2).
+enum class WeightRouting {
+  /// Default (the paper): w_e from each element's own material in A; the stretch-space proxes
+  /// use the mesh-wide (volume-weighted) means (mu_bar, lambda_bar, k_bar = 2 mu_bar +
+  /// lambda_bar).
+  StiffnessAware,
+  /// w_e per element in A and per-element (mu_e, lambda_e, k_e = 2 mu_e + lambda_e) inside the
+  /// prox: the failure mode of Fig. 4b, kept for the benchmark.
+  PerElementProx,
+  /// One material for every element (the volume-weighted means): the plain-PD baseline. Mass
+  /// still follows each element's density.
+  Uniform,
+};
+
+inline const char* to_string(WeightRouting r) {
+  switch (r) {
+    case WeightRouting::StiffnessAware:
+      return "stiffness-aware";
+    case WeightRouting::PerElementProx:
+      return "per-element-prox";
+    case WeightRouting::Uniform:
+      return "uniform";
+  }
+  return "?";
+}
+
+/// \brief Options of the forward step. Changing h, alpha, beta0 or routing through
+/// Solver::set_options() refactors A once; the other fields take effect at the next step.
+struct SolverOptions {
+  double h = 1.0 / 60;  ///< time step (s)
+  double alpha = 0;     ///< Rayleigh mass damping (1/s), eq. (30)
+  /// Stiffness damping scale in Pa s: beta_e = beta0 mu_e / mu_ref (Sec. 4.5), so the stiffest
+  /// element gets beta0 (compare with w_e ~ 2 mu_e: beta0 = 0.01 mu_ref damps a mode of angular
+  /// frequency omega by about 0.01 omega / 2 per second relative to its stiffness).
+  double beta0 = 0;
+  /// Anderson window m: -1 auto (m = 1 when the stiffness contrast max E / min E > 1, else 5;
+  /// Sec. 4.3), 0 plain PD, m > 0 explicit.
+  int anderson_window = -1;
+  /// Relative Tikhonov coefficient of eq. (20): rho = max(c ||Delta G||_F^2 / m, 1e-300). The
+  /// paper uses c = 1e-6; this default (from the API brief) is 1e-10. Both give the same
+  /// iteration counts on the tested scenes (docs/solver.md).
+  double anderson_tikhonov = 1e-10;
+  double anderson_reset = 10.0;  ///< discard the AA history when ||gamma||_2 exceeds this
+  double eps_rel = 1e-4;         ///< dual gate, eq. (22)
+  double eps_abs = 1e-8;         ///< dual gate, eq. (22)
+  int max_iterations = 200;      ///< global solves per step at most
+  WeightRouting routing = WeightRouting::StiffnessAware;
+  Vec<3> gravity = Vec<3>(0, -9.81, 0);  ///< m/s^2; the first Dim entries are used
+};
+
+/// \brief Outcome of one step.
+enum class StepStatus {
+  Converged,      ///< the dual gate fired
+  MaxIterations,  ///< max_iterations global solves without the gate firing (state advanced)
+  NonFinite,      ///< NaN/Inf met; the state is left at the start of the step (not advanced)
+};
+
+inline const char* to_string(StepStatus s) {
+  switch (s) {
+    case StepStatus::Converged:
+      return "converged";
+    case StepStatus::MaxIterations:
+      return "max-iterations";
+    case StepStatus::NonFinite:
+      return "non-finite";
+  }
+  return "?";
+}
+
+/// \brief What one step did.
+struct StepReport {
+  int iterations = 0;       ///< global solves (local-global iterations) performed
+  double primal_ratio = 0;  ///< last ||dq|| / (eps_rel ||q|| + eps_abs) of eq. (22)
+  double dual_ratio = 0;    ///< last ||db|| / (eps_rel ||b|| + eps_abs) of eq. (22)
+  bool converged = false;   ///< status == Converged
+  int aa_resets = 0;        ///< Anderson history resets by the ||gamma|| guard in this step
+  StepStatus status = StepStatus::MaxIterations;
+  std::string message;  ///< empty when converged; otherwise what happened, where
+  double seconds = 0;   ///< wall time of the step
+};
+
+/// \brief Scripted Dirichlet motion of a vertex set. Driven vertices are fixed on every axis.
+///
+/// With tau(t) = clamp(t, start, stop) - start, the position of a driven vertex with reference
+/// position X (its position when add_driver() was called) is
+/// * Fixed: X;
+/// * Twist: c + R(angular_velocity tau) (X - c), rotation about `axis` through `center` (in 2D
+///   the in-plane rotation; axis ignored);
+/// * Pull: X + velocity tau.
+/// Before `start` the vertices are held at X; after `stop` they stay at the reached pose, or,
+/// with release_at_stop, are freed (no longer Dirichlet) from the first step ending after stop
+/// ("twisted then released").
+template <int Dim>
+struct Driver {
+  enum class Kind { Fixed, Twist, Pull } kind = Kind::Fixed;
+  std::vector<Index> vertices;
+  Vec<3> axis = Vec<3>::UnitX();
+  Vec<3> center = Vec<3>::Zero();
+  double angular_velocity = 0;       ///< rad/s (Twist)
+  Vec<3> velocity = Vec<3>::Zero();  ///< m/s (Pull)
+  double start = 0, stop = INFINITY;
+  bool release_at_stop = false;
+};
+
+namespace detail {
+template <class E>
+struct as_energies {
+  using type = Energies<E>;
+};
+template <class... T>
+struct as_energies<Energies<T...>> {
+  using type = Energies<T...>;
+};
+}  // namespace detail
+
+/// \brief The DiffPhD forward solver for one soft body (contact-free).
+///
+/// \tparam Dim 2 (triangles) or 3 (tetrahedra)
+/// \tparam Energy one PD term (`Corotated`) or a pack (`Energies<Corotated, Volume>`)
+/// \tparam Contact NoContact (the only model so far)
+/// \tparam Backend CpuBackend
+///
+/// The factor of A (eq. 31) is computed in the constructor and again only when the materials,
+/// h, alpha, beta0, the routing, the muscle stiffness/fibres or the Dirichlet set change
+/// (factorization_count() counts them). Every step returns a StepReport; nothing non-finite
+/// is ever committed to the state.
+///
+/// \code
+/// using namespace diffphd;
+/// SimplicialMesh<3> mesh = make_bar(1.0, 0.1, 0.1, 20);
+/// MaterialField mat(mesh.num_elements(), Material{1e6, 0.3, 1000});
+/// mat.assign_slab(mesh, 0, 0.5, 1.0, Material{1e8, 0.3, 1000});
+/// Solver<3, Energies<Corotated, Volume>> sim(mesh, mat, SolverOptions{});
+/// sim.fix_vertices(left_end);
+/// Driver<3> twist;  twist.kind = Driver<3>::Kind::Twist;  twist.vertices = right_end;
+/// twist.angular_velocity = 3.0;  twist.center = Vec<3>(1, 0.05, 0.05);
+/// sim.add_driver(twist);
+/// for (int i = 0; i < 60; ++i) {
+///   StepReport r = sim.step();
+///   if (r.status == StepStatus::NonFinite) throw std::runtime_error(r.message);
+/// }
+/// \endcode
+template <int Dim, class Energy, class Contact = NoContact, class Backend = CpuBackend>
+class Solver {
+  static_assert(Dim == 2 || Dim == 3, "Solver<Dim, ...>: Dim must be 2 (triangles) or 3 (tets)");
+  static_assert(std::is_same<Contact, NoContact>::value,
+                "Solver: only Contact = NoContact is implemented so far.");
+
+ public:
+  using EnergyPack = typename detail::as_energies<Energy>::type;
+  using Vector = typename Backend::Vector;
+  using FixedMask = typename PDSystem<Dim>::FixedMask;
+  static constexpr bool kHasFibreTerms = EnergyPack::has_fibre_terms;
+
+  /// \param mesh  the rest mesh (#V vertices, #E elements)
+  /// \param materials  #E materials
+  /// \param options  see SolverOptions
+  /// \throws InputError on mismatched sizes, bad options, or a vertex that belongs to no element
+  Solver(SimplicialMesh<Dim> mesh, MaterialField materials, SolverOptions options = {})
+      : mesh_(std::move(mesh)), materials_(std::move(materials)), options_(options) {
+    nv_ = mesh_.num_vertices();
+    ne_ = mesh_.num_elements();
+    if (materials_.size() != ne_)
+      throw InputError("Solver: materials has " + std::to_string(materials_.size()) +
+                       " elements, the mesh has " + std::to_string(ne_));
+    validate_options(options_);
+    positions_ = mesh_.rest_positions();
+    velocities_ = VertexMatrix<Dim>::Zero(nv_, Dim);
+    f_ext_ = VertexMatrix<Dim>::Zero(nv_, Dim);
+    mask_ = FixedMask::Constant(nv_, Dim, false);
+    fixed_value_ = positions_;
+    muscle_k_ = VectorX::Zero(ne_);
+    fibres_ = MatrixX::Zero(ne_, 3);
+    fibres_.col(0).setOnes();
+    activation_ = VectorX::Ones(ne_);
+    build_adjacency();
+    refresh_materials();
+    // The factor is computed here. Without Dirichlet conditions A is SPD only through its mass
+    // term; with a huge h (quasi-static use) that term is below rounding and the factorization
+    // of the unconstrained A can fail. Then the factor is computed at the first step, with the
+    // Dirichlet set given by then (a failure there throws).
+    try {
+      factor();
+    } catch (const std::runtime_error&) {
+      stale_ = true;
+    }
+  }
+
+  // ---- boundary conditions and loads ------------------------------------------------------
+
+  /// Holds the listed vertices on the given axes at their current positions (the rest positions
+  /// before any step). Changes the Dirichlet set: the next step refactors once.
+  void fix_vertices(const std::vector<Index>& v, std::array<bool, Dim> axes = all_axes()) {
+    for (Index i : v) check_vertex(i, "fix_vertices");
+    for (Index i : v)
+      for (int k = 0; k < Dim; ++k)
+        if (axes[k]) {
+          user_fixed_.emplace_back(i, k);
+          fixed_value_(i, k) = positions_(i, k);
+        }
+  }
+  /// Adds scripted motion (see Driver). Reference positions are the current positions.
+  void add_driver(Driver<Dim> d) {
+    for (Index i : d.vertices) check_vertex(i, "add_driver");
+    if (!(d.stop >= d.start)) throw InputError("add_driver: stop must be >= start");
+    DriverState s;
+    s.reference.resize(static_cast<Index>(d.vertices.size()), Dim);
+    for (size_t j = 0; j < d.vertices.size(); ++j)
+      s.reference.row(static_cast<Index>(j)) = positions_.row(d.vertices[j]);
+    s.driver = std::move(d);
+    if (s.driver.kind == Driver<Dim>::Kind::Twist) {
+      if (!(s.driver.axis.template head<Dim>().norm() > 0) && Dim == 3)
+        throw InputError("add_driver: twist axis must be non-zero");
+    }
+    drivers_.push_back(std::move(s));
+  }
+  /// Position of driven vertex j of driver d at time t (as the solver prescribes it).
+  Vec<Dim> driver_position(int d, Index j, double t) const { return drive(drivers_.at(d), j, t); }
+  /// External forces (N per vertex, #V by Dim), held until changed. Not validated here: a
+  /// non-finite force makes the next step report NonFinite.
+  void set_external_forces(const VertexMatrix<Dim>& f) {
+    if (f.rows() != nv_)
+      throw InputError("set_external_forces: " + std::to_string(f.rows()) + " rows, expected " +
+                       std::to_string(nv_));
+    f_ext_ = f;
+  }
+  /// Sets positions and velocities (#V by Dim each). Fixed (non-driver) vertices keep the
+  /// values they were fixed at.
+  void set_state(const VertexMatrix<Dim>& q, const VertexMatrix<Dim>& v) {
+    if (q.rows() != nv_ || v.rows() != nv_)
+      throw InputError("set_state: expected " + std::to_string(nv_) + " rows");
+    if (!q.allFinite() || !v.allFinite()) throw InputError("set_state: non-finite state");
+    positions_ = q;
+    velocities_ = v;
+  }
+  void set_time(double t) { t_ = t; }
+
+  /// Muscle (fibre terms only): per-element stiffness k_e (#E) and fibre directions (#E by 3,
+  /// first Dim entries used, normalised). Changes A: refactors at the next step.
+  template <bool F = kHasFibreTerms, std::enable_if_t<F, int> = 0>
+  void set_muscle(const VectorX& stiffness, const MatrixX& fibres) {
+    if (stiffness.size() != ne_ || fibres.rows() != ne_ || fibres.cols() != 3)
+      throw InputError("set_muscle: expected #E stiffnesses and an #E by 3 fibre matrix");
+    for (Index e = 0; e < ne_; ++e) {
+      if (!(std::isfinite(stiffness[e]) && stiffness[e] >= 0))
+        throw InputError("set_muscle: element " + std::to_string(e) + ": stiffness must be >= 0");
+      if (!(fibres.row(e).template head<Dim>().norm() > 0))
+        throw InputError("set_muscle: element " + std::to_string(e) + ": zero fibre direction");
+    }
+    muscle_k_ = stiffness;
+    fibres_ = fibres;
+    refresh_materials();
+    stale_ = true;
+  }
+  /// Muscle activation a_e (#E, target fibre stretch, 1 = rest). Local step only: no refactor.
+  template <bool F = kHasFibreTerms, std::enable_if_t<F, int> = 0>
+  void set_activation(const VectorX& activation) {
+    if (activation.size() != ne_ || !activation.allFinite())
+      throw InputError("set_activation: expected #E finite activations");
+    activation_ = activation;
+    for (Index e = 0; e < ne_; ++e) params_[e].activation = activation_[e];
+  }
+
+  /// Replaces the options. Refactors (once, at the next step) when h, alpha, beta0 or the
+  /// routing change.
+  void set_options(const SolverOptions& o) {
+    validate_options(o);
+    const bool matrix_change = o.h != options_.h || o.alpha != options_.alpha ||
+                               o.beta0 != options_.beta0 || o.routing != options_.routing;
+    options_ = o;
+    refresh_materials();
+    if (matrix_change) stale_ = true;
+  }
+  /// Replaces the materials (same element count). Refactors at the next step.
+  void set_materials(const MaterialField& m) {
+    if (m.size() != ne_) throw InputError("set_materials: element count differs from the mesh");
+    materials_ = m;
+    refresh_materials();
+    stale_ = true;
+  }
+
+  // ---- stepping ---------------------------------------------------------------------------
+
+  /// One implicit-Euler step of length h (Algorithm 1, K = 0).
+  StepReport step() {
+    const auto t_start = std::chrono::steady_clock::now();
+    StepReport rep;
+    prepare_system();
+    const double h = options_.h, t1 = t_ + h;
+    const Index n = nv_ * Dim;
+    build_dirichlet_values(t1);  // xfix_ at t + h
+
+    // Flat copies of the state (row-major #V by Dim).
+    const Vector q_t = flat(positions_);
+    const Vector v_t = flat(velocities_);
+    // Inertial target, eq. (3): q~ = q_t + h v_t + h^2 M^-1 (f_ext + M g).
+    Vector qtil(n);
+    for (Index v = 0; v < nv_; ++v)
+      for (int k = 0; k < Dim; ++k) {
+        const Index i = Dim * v + k;
+        qtil[i] = q_t[i] + h * v_t[i] + h * h * (f_ext_(v, k) / mass_[v] + options_.gravity[k]);
+      }
+    Index bad = -1;
+    if (!Backend::all_finite(qtil, &bad))
+      return fail(rep, t_start,
+                  "iteration 0: non-finite inertial target q~ at vertex " +
+                      std::to_string(bad / Dim) + " (external force, velocity or position)");
+    // Constant part of b: (M/h^2) q~ + (alpha/h) M q_t + (1/h) B_beta q_t (docs/solver.md).
+    Vector rhs0(n);
+    for (Index v = 0; v < nv_; ++v)
+      for (int k = 0; k < Dim; ++k) {
+        const Index i = Dim * v + k;
+        rhs0[i] = mass_[v] / (h * h) * qtil[i] + options_.alpha / h * mass_[v] * q_t[i];
+      }
+    if (options_.beta0 > 0) {
+      Vector bq(n);
+      scatter(q_t, bq, [&](Index e, const Mat<Dim>& F) -> Mat<Dim> { return beta_[e] * F; });
+      Backend::axpy(1.0 / h, bq, rhs0);
+    }
+
+    // Iteration (Algorithm 1, lines 11-32).
+    Vector q = q_t, q_prev, b(n), b_prev, qhat, qnext;
+    impose(q);
+    mixer_ = AndersonMixer<Backend>(window_, options_.anderson_tikhonov, options_.anderson_reset);
+    DualGate gate(options_.eps_rel, options_.eps_abs);
+    for (int i = 0;; ++i) {
+      // Local step at q^i and b(q^i), eq. (11).
+      Index bad_element = -1;
+      if (!local_step(q, b, &bad_element)) {
+        std::ostringstream os;
+        os << "iteration " << i << ": non-finite local projection at element " << bad_element;
+        return fail(rep, t_start, os.str(), mixer_.resets());
+      }
+      Backend::axpy(1.0, rhs0, b);
+      if (i >= 1) {
+        // Dual gate, eq. (22), for the increment q^i - q^{i-1} (paper's k = i - 1).
+        const bool fire = gate.test(i - 1, Backend::distance(q, q_prev), Backend::norm(q_prev),
+                                    Backend::distance(b, b_prev), Backend::norm(b_prev));
+        rep.primal_ratio = gate.primal_ratio();
+        rep.dual_ratio = gate.dual_ratio();
+        if (fire) {
+          rep.status = StepStatus::Converged;
+          rep.converged = true;
+          break;
+        }
+      }
+      if (i >= options_.max_iterations) {
+        rep.status = StepStatus::MaxIterations;
+        std::ostringstream os;
+        os << "not converged after " << i << " iterations (primal ratio " << rep.primal_ratio
+           << ", dual ratio " << rep.dual_ratio << ")";
+        rep.message = os.str();
+        break;
+      }
+      // Global step.
+      Backend::template apply_inverse<Dim>(system_, b, xfix_, qhat);
+      if (!Backend::all_finite(qhat, &bad)) {
+        std::ostringstream os;
+        os << "iteration " << i << ": non-finite global solve at vertex " << bad / Dim;
+        return fail(rep, t_start, os.str(), mixer_.resets());
+      }
+      // Anderson, eqs. (18)-(21), then Dirichlet.
+      mixer_.mix(q, qhat, qnext);
+      impose(qnext);
+      if (!Backend::all_finite(qnext, &bad)) {
+        std::ostringstream os;
+        os << "iteration " << i << ": non-finite Anderson iterate at vertex " << bad / Dim;
+        return fail(rep, t_start, os.str(), mixer_.resets());
+      }
+      std::swap(q_prev, q);
+      std::swap(q, qnext);
+      std::swap(b_prev, b);
+      if (b.size() != n) b.resize(n);
+      rep.iterations = i + 1;
+    }
+    rep.aa_resets = mixer_.resets();
+    // Commit: v_{t+h} = (q_{t+h} - q_t) / h.
+    for (Index v = 0; v < nv_; ++v)
+      for (int k = 0; k < Dim; ++k) {
+        const Index i = Dim * v + k;
+        velocities_(v, k) = (q[i] - q_t[i]) / h;
+        positions_(v, k) = q[i];
+      }
+    t_ = t1;
+    last_iterate_prev_ = q_prev;
+    rep.seconds = seconds_since(t_start);
+    return rep;
+  }
+
+  // ---- state and diagnostics --------------------------------------------------------------
+
+  const VertexMatrix<Dim>& positions() const { return positions_; }
+  const VertexMatrix<Dim>& velocities() const { return velocities_; }
+  double time() const { return t_; }
+  const SimplicialMesh<Dim>& mesh() const { return mesh_; }
+  const MaterialField& materials() const { return materials_; }
+  const SolverOptions& options() const { return options_; }
+  /// Resolved Anderson window (auto: 1 on heterogeneous meshes, 5 on homogeneous ones).
+  int anderson_window() const { return window_; }
+  /// Numeric factorizations of A so far (the constructor's included).
+  int factorization_count() const { return static_cast<int>(system_.factorization_count()); }
+  /// #V lumped masses.
+  const VectorX& masses() const { return mass_; }
+  /// The mesh-wide means used by the prox under StiffnessAware / Uniform routing.
+  const ProxMeans& prox_means() const { return mean_; }
+  /// Per-element projective weights w_e in A (isotropic terms).
+  const VectorX& weights() const { return w_; }
+  /// Per-element stiffness damping beta_e.
+  const VectorX& damping_coefficients() const { return beta_; }
+  /// The global system (factor(s) of A with the current Dirichlet set).
+  const PDSystem<Dim>& system() const { return system_; }
+  /// The current Dirichlet mask (#V by Dim), as used by the last step.
+  const FixedMask& dirichlet_mask() const { return mask_; }
+
+  /// 1/2 sum_v m_v |v_v|^2.
+  double kinetic_energy() const {
+    double e = 0;
+    for (Index v = 0; v < nv_; ++v) e += 0.5 * mass_[v] * velocities_.row(v).squaredNorm();
+    return e;
+  }
+  /// PD surrogate elastic energy sum_e V_e sum_k w_k / 2 ||F_e - p_k(F_e)||^2 at `x` (#V by Dim),
+  /// with the routing of the options.
+  double elastic_energy(const VertexMatrix<Dim>& x) const {
+    double e = 0;
+    for (Index el = 0; el < ne_; ++el) {
+      const Mat<Dim> F = mesh_.deformation_gradient(el, x);
+      e += mesh_.rest_volume(el) *
+           EnergyPack::template surrogate_energy<double, Dim>(F, params_[el], means_[el]);
+    }
+    return e;
+  }
+  double elastic_energy() const { return elastic_energy(positions_); }
+  /// - sum_v m_v g . x_v (zero for zero gravity).
+  double gravity_potential() const {
+    double e = 0;
+    for (Index v = 0; v < nv_; ++v)
+      e -= mass_[v] * options_.gravity.template head<Dim>().dot(positions_.row(v).transpose());
+    return e;
+  }
+  /// min_e det F_e at the current positions (<= 0: some element is inverted or flat).
+  double min_jacobian() const {
+    double m = std::numeric_limits<double>::infinity();
+    for (Index e = 0; e < ne_; ++e)
+      m = std::min(m, mesh_.deformation_gradient(e, positions_).determinant());
+    return m;
+  }
+
+ private:
+  struct DriverState {
+    Driver<Dim> driver;
+    VertexMatrix<Dim> reference;
+  };
+
+  static constexpr std::array<bool, Dim> all_axes() {
+    std::array<bool, Dim> a{};
+    for (int k = 0; k < Dim; ++k) a[k] = true;
+    return a;
+  }
+  static double seconds_since(std::chrono::steady_clock::time_point t0) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+  static Vector flat(const VertexMatrix<Dim>& x) {
+    return Eigen::Map<const Vector>(x.data(), x.size());
+  }
+  void check_vertex(Index i, const char* fn) const {
+    if (i < 0 || i >= nv_)
+      throw InputError(std::string(fn) + ": vertex " + std::to_string(i) + " out of range [0, " +
+                       std::to_string(nv_) + ")");
+  }
+  static void validate_options(const SolverOptions& o) {
+    auto bad = [](const std::string& what) { throw InputError("SolverOptions: " + what); };
+    if (!(std::isfinite(o.h) && o.h > 0)) bad("h must be finite and > 0");
+    if (!(std::isfinite(o.alpha) && o.alpha >= 0)) bad("alpha must be finite and >= 0");
+    if (!(std::isfinite(o.beta0) && o.beta0 >= 0)) bad("beta0 must be finite and >= 0");
+    if (o.anderson_window < -1) bad("anderson_window must be -1 (auto), 0 or positive");
+    if (!(o.eps_rel >= 0 && o.eps_abs >= 0)) bad("eps_rel and eps_abs must be >= 0");
+    if (o.max_iterations < 1) bad("max_iterations must be >= 1");
+    if (!o.gravity.allFinite()) bad("gravity must be finite");
+  }
+
+  StepReport& fail(StepReport& rep, std::chrono::steady_clock::time_point t0,
+                   const std::string& what, int resets = 0) {
+    rep.status = StepStatus::NonFinite;
+    rep.converged = false;
+    rep.aa_resets = resets;
+    std::ostringstream os;
+    os << "step at t = " << t_ << ": " << what << "; state left at the start of the step";
+    rep.message = os.str();
+    rep.seconds = seconds_since(t0);
+    return rep;
+  }
+
+  /// Vertex -> (element, local node) incidence, CSR, for a race-free parallel scatter.
+  void build_adjacency() {
+    const auto& T = mesh_.elements();
+    adj_ptr_.assign(nv_ + 1, 0);
+    for (Index e = 0; e < ne_; ++e)
+      for (int a = 0; a <= Dim; ++a) ++adj_ptr_[T(e, a) + 1];
+    for (Index v = 0; v < nv_; ++v) adj_ptr_[v + 1] += adj_ptr_[v];
+    adj_.resize(adj_ptr_[nv_]);
+    std::vector<Index> fill(adj_ptr_.begin(), adj_ptr_.end() - 1);
+    for (Index e = 0; e < ne_; ++e)
+      for (int a = 0; a <= Dim; ++a) adj_[fill[T(e, a)]++] = e * (Dim + 1) + a;
+    for (Index v = 0; v < nv_; ++v)
+      if (adj_ptr_[v + 1] == adj_ptr_[v])
+        throw InputError("Solver: vertex " + std::to_string(v) +
+                         " belongs to no element (it would have zero mass)");
+    contrib_.resize(static_cast<size_t>(ne_) * (Dim + 1) * Dim);
+    bad_.assign(ne_, 0);
+  }
+
+  /// Per-element parameters, means, weights, damping and mass from materials and options.
+  void refresh_materials() {
+    mass_ = mesh_.lumped_mass(materials_.densities());
+    const VectorX mu = materials_.mu(), lambda = materials_.lambda();
+    const VectorX& V = mesh_.rest_volumes();
+    const double vol = V.sum();
+    mean_.mu_bar = V.dot(mu) / vol;
+    mean_.lambda_bar = V.dot(lambda) / vol;
+    mean_.k_bar = 2.0 * mean_.mu_bar + mean_.lambda_bar;
+    params_.assign(ne_, ElementParams{});
+    means_.assign(ne_, mean_);
+    w_.resize(ne_);
+    for (Index e = 0; e < ne_; ++e) {
+      ElementParams& p = params_[e];
+      const bool uniform = options_.routing == WeightRouting::Uniform;
+      p.mu = uniform ? mean_.mu_bar : mu[e];
+      p.lambda = uniform ? mean_.lambda_bar : lambda[e];
+      p.weight = muscle_k_[e];
+      p.fibre = fibres_.row(e).transpose();
+      p.activation = activation_[e];
+      if (options_.routing == WeightRouting::PerElementProx)
+        means_[e] = ProxMeans{mu[e], lambda[e], 2.0 * mu[e] + lambda[e]};
+      w_[e] = EnergyPack::element_weight(p);
+    }
+    beta_ = stiffness_damping(materials_, options_.beta0);
+    const int m = options_.anderson_window;
+    window_ = m >= 0 ? m : (materials_.stiffness_contrast() > 1.0 ? 1 : 5);
+  }
+
+  /// Assembles A_s (eq. 31, plus the fibre block of fibre terms) and factors it.
+  void factor() {
+    SparseMatrix A = assemble_pd_matrix<Dim>(mesh_, mass_, w_, beta_, options_.h, options_.alpha);
+    if constexpr (kHasFibreTerms) {
+      std::vector<Eigen::Triplet<double, Index>> trips;
+      const auto& T = mesh_.elements();
+      for (Index e = 0; e < ne_; ++e) {
+        const double k = EnergyPack::fibre_weight(params_[e]);
+        if (k == 0) continue;
+        const Vec<Dim> m = params_[e].fibre.template head<Dim>().normalized();
+        const Eigen::Matrix<double, Dim + 1, 1> Dm = mesh_.shape_gradients(e).transpose() * m;
+        for (int a = 0; a <= Dim; ++a)
+          for (int c = 0; c <= Dim; ++c)
+            trips.emplace_back(T(e, a), T(e, c), k * mesh_.rest_volume(e) * Dm[a] * Dm[c]);
+      }
+      SparseMatrix B(nv_, nv_);
+      B.setFromTriplets(trips.begin(), trips.end());
+      A += B;
+    }
+    system_.compute(A);
+    stale_ = false;
+  }
+
+  /// Dirichlet mask at the end of the coming step and refactor if anything changed.
+  void prepare_system() {
+    const double t1 = t_ + options_.h;
+    FixedMask mask = FixedMask::Constant(nv_, Dim, false);
+    for (const auto& f : user_fixed_) mask(f.first, f.second) = true;
+    for (auto& s : drivers_) {
+      if (s.driver.release_at_stop && t1 > s.driver.stop) continue;
+      for (Index v : s.driver.vertices) mask.row(v).setConstant(true);
+    }
+    if (stale_) {
+      // Set the mask first (PDSystem refactors the old matrix on a mask change; harmless but
+      // counted), then factor the new matrix.
+      if (mask != mask_) {
+        mask_ = mask;
+        system_.set_dirichlet(mask_.any() ? mask_ : FixedMask());
+      }
+      factor();
+    } else if (mask != mask_) {
+      mask_ = mask;
+      system_.set_dirichlet(mask_.any() ? mask_ : FixedMask());
+    }
+  }
+
+  Vec<Dim> drive(const DriverState& s, Index j, double t) const {
+    const Driver<Dim>& d = s.driver;
+    const double tau = std::min(std::max(t, d.start), d.stop) - d.start;
+    const Vec<Dim> X = s.reference.row(j).transpose();
+    switch (d.kind) {
+      case Driver<Dim>::Kind::Fixed:
+        return X;
+      case Driver<Dim>::Kind::Pull:
+        return X + tau * d.velocity.template head<Dim>();
+      case Driver<Dim>::Kind::Twist: {
+        const double angle = d.angular_velocity * tau;
+        const Vec<Dim> c = d.center.template head<Dim>();
+        Mat<Dim> R;
+        if constexpr (Dim == 3)
+          R = Eigen::AngleAxisd(angle, d.axis.normalized()).toRotationMatrix();
+        else
+          R = Eigen::Rotation2Dd(angle).toRotationMatrix();
+        return c + R * (X - c);
+      }
+    }
+    return X;
+  }
+
+  /// xfix_ = prescribed values at time t (only fixed DoFs are read).
+  void build_dirichlet_values(double t) {
+    xfix_ = flat(positions_);
+    for (const auto& f : user_fixed_)
+      xfix_[Dim * f.first + f.second] = fixed_value_(f.first, f.second);
+    for (const auto& s : drivers_) {
+      if (s.driver.release_at_stop && t > s.driver.stop) continue;
+      for (size_t j = 0; j < s.driver.vertices.size(); ++j) {
+        const Vec<Dim> x = drive(s, static_cast<Index>(j), t);
+        for (int k = 0; k < Dim; ++k) xfix_[Dim * s.driver.vertices[j] + k] = x[k];
+      }
+    }
+  }
+  /// Dirichlet enforcement: q = x_fixed on fixed DoFs.
+  void impose(Vector& q) const {
+    for (Index v = 0; v < nv_; ++v)
+      for (int k = 0; k < Dim; ++k)
+        if (mask_(v, k)) q[Dim * v + k] = xfix_[Dim * v + k];
+  }
+
+  /// out = sum_e V_e G_e^T vec(P_e(F_e(q))): per element the Dim x Dim matrix P_e = f(e, F_e)
+  /// contributes V_e P_e g_a to vertex T(e, a). Element-parallel, then a vertex-parallel gather
+  /// (no atomics, deterministic). Returns false when some P_e is not finite (bad_[e] = 1).
+  template <class F>
+  bool scatter(const Vector& q, Vector& out, F&& f) {
+    const auto& T = mesh_.elements();
+    bool any_bad = false;
+    Backend::for_each_element(ne_, [&](Index e) {
+      Mat<Dim> Fe = Mat<Dim>::Zero();
+      const auto& g = mesh_.shape_gradients(e);
+      for (int a = 0; a <= Dim; ++a)
+        Fe += Eigen::Map<const Vec<Dim>>(q.data() + Dim * T(e, a)) * g.col(a).transpose();
+      const Mat<Dim> P = f(e, Fe);
+      const bool ok = P.allFinite();
+      bad_[e] = ok ? 0 : 1;
+      const double V = mesh_.rest_volume(e);
+      for (int a = 0; a <= Dim; ++a) {
+        const Vec<Dim> c = ok ? Vec<Dim>(V * P * g.col(a)) : Vec<Dim>::Zero();
+        for (int k = 0; k < Dim; ++k)
+          contrib_[(static_cast<size_t>(e) * (Dim + 1) + a) * Dim + k] = c[k];
+      }
+    });
+    for (Index e = 0; e < ne_; ++e)
+      if (bad_[e]) {
+        any_bad = true;
+        break;
+      }
+    out.resize(nv_ * Dim);
+    Backend::for_each_vertex(nv_, [&](Index v) {
+      Vec<Dim> s = Vec<Dim>::Zero();
+      for (Index j = adj_ptr_[v]; j < adj_ptr_[v + 1]; ++j)
+        s += Eigen::Map<const Vec<Dim>>(contrib_.data() + static_cast<size_t>(adj_[j]) * Dim);
+      for (int k = 0; k < Dim; ++k) out[Dim * v + k] = s[k];
+    });
+    return !any_bad;
+  }
+
+  /// Local step at q: b_elastic = sum_e V_e G_e^T vec(sum_k w_k p_k(F_e)). Returns false and
+  /// the first bad element when a projection is not finite.
+  bool local_step(const Vector& q, Vector& b, Index* bad_element) {
+    const bool ok = scatter(q, b, [&](Index e, const Mat<Dim>& F) -> Mat<Dim> {
+      return EnergyPack::template weighted_projection<double, Dim>(F, params_[e], means_[e]);
+    });
+    if (!ok)
+      for (Index e = 0; e < ne_; ++e)
+        if (bad_[e]) {
+          *bad_element = e;
+          break;
+        }
+    return ok;
+  }
+
+  SimplicialMesh<Dim> mesh_;
+  MaterialField materials_;
+  SolverOptions options_;
+  Index nv_ = 0, ne_ = 0;
+  VectorX mass_, w_, beta_;
+  ProxMeans mean_;
+  std::vector<ElementParams> params_;
+  std::vector<ProxMeans> means_;
+  VectorX muscle_k_, activation_;
+  MatrixX fibres_;
+  int window_ = 1;
+  PDSystem<Dim> system_;
+  bool stale_ = true;
+  FixedMask mask_;
+  std::vector<std::pair<Index, int>> user_fixed_;
+  VertexMatrix<Dim> fixed_value_;
+  std::vector<DriverState> drivers_;
+  VertexMatrix<Dim> positions_, velocities_, f_ext_;
+  double t_ = 0;
+  Vector xfix_, last_iterate_prev_;
+  AndersonMixer<Backend> mixer_;
+  std::vector<Index> adj_ptr_, adj_;
+  std::vector<double> contrib_;
+  std::vector<unsigned char> bad_;
+};
+
+}  // namespace diffphd
