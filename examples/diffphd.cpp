@@ -2,9 +2,9 @@
 //
 //   diffphd --version
 //   diffphd mesh-info FILE [--json]
-//   diffphd demo [--out DIR] [--frames N] [--json]
+//   diffphd run SCENE.json [--out DIR] [--frames N] [--contrast C] [--anderson M] [--json] ...
 //
-// Later issues add run, bench, optimize and gradcheck.
+// Later issues add bench, optimize and gradcheck.
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -19,21 +19,14 @@
 #include <diffphd/io/generators.hpp>
 #include <diffphd/io/io.hpp>
 #include <diffphd/io/vtk.hpp>
-#include <diffphd/linalg/pd_matrix.hpp>
-#include <diffphd/linalg/pd_system.hpp>
+#include <diffphd/io/scene.hpp>
 
-#include "progress.hpp"
+#include "scene_run.hpp"
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 
 namespace {
-
-std::string frame_name(const std::string& prefix, int frame, const std::string& ext) {
-  char digits[16];
-  std::snprintf(digits, sizeof digits, "%06d", frame);
-  return prefix + digits + ext;
-}
 
 template <int Dim>
 json mesh_info(const std::string& path) {
@@ -66,110 +59,26 @@ int cmd_mesh_info(const std::string& path, bool as_json) {
   return 0;
 }
 
-// The Foundation demo: a three-segment cantilever bar (middle segment 10x stiffer), clamped at
-// x = 0, sagging under gravity. Each step is one PD global solve A q = b with the local
-// projection held at the rest pose (p_e = I), i.e. the linear model that the forward solver
-// replaces with corotated / Neo-Hookean projections. It exercises the mesh generator, the
-// heterogeneous PD matrix, the METIS-ordered factorization (factored once), the Dirichlet
-// elimination and the VTU/PVD and OBJ writers.
-int cmd_demo(const std::string& out_dir, int frames, int substeps, bool as_json) {
-  using namespace diffphd;
-  constexpr int Dim = 3;
-  const double length = 1.0, width = 0.1, h = 1.0 / (30.0 * substeps);
-  const auto mesh = make_bar(length, width, width, 30);
-  MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000, 0});
-  mats.assign_slab(mesh, 0, length / 3, 2 * length / 3, Material{1e6, 0.3, 1000, 1});
-
-  PDMatrixParams params;
-  params.h = h;
-  PDSystem<Dim> system;
-  Eigen::Matrix<bool, Eigen::Dynamic, Dim> fixed =
-      Eigen::Matrix<bool, Eigen::Dynamic, Dim>::Constant(mesh.num_vertices(), Dim, false);
-  for (Index v = 0; v < mesh.num_vertices(); ++v)
-    if (mesh.rest_positions()(v, 0) <= 1e-12) fixed.row(v).setConstant(true);
-  system.set_dirichlet(fixed);
-  system.update(mesh, mats, params);
-
-  const VectorX mass = mesh.lumped_mass(mats.densities());
-  const VectorX w = pd_weights(mats, params.rule, params.band);
-  const SparseMatrix G = mesh.gradient_operator();
-  // Rest term sum_e w_e V_e G_e^T p_e with p_e = I is L_w X for the weighted Laplacian L_w.
-  VectorX wv(Dim * mesh.num_elements());
-  for (Index e = 0; e < mesh.num_elements(); ++e)
-    wv.segment<Dim>(Dim * e).setConstant(w[e] * mesh.rest_volume(e));
-  const SparseMatrix Lw = SparseMatrix(G.transpose()) * wv.asDiagonal() * G;
-  const VertexMatrix<Dim> X = mesh.rest_positions();
-  const VertexMatrix<Dim> rest_term = Lw * X;
-
-  Index tip = 0;
-  for (Index v = 0; v < mesh.num_vertices(); ++v)
-    if ((mesh.rest_positions().row(v) - Eigen::RowVector3d(length, width / 2, width / 2)).norm() <
-        (mesh.rest_positions().row(tip) - Eigen::RowVector3d(length, width / 2, width / 2)).norm())
-      tip = v;
-
-  fs::create_directories(fs::path(out_dir) / "frames");
-  io::PvdWriter pvd((fs::path(out_dir) / "frames").string(), "demo");
-  std::ofstream csv(fs::path(out_dir) / "stats.csv");
-  csv << "frame,time,tip_deflection_y,max_displacement,solve_ms\n";
-
-  VertexMatrix<Dim> q = X, v = VertexMatrix<Dim>::Zero(mesh.num_vertices(), Dim);
-  const Eigen::RowVector3d gravity(0, -9.81, 0);
-  std::vector<double> solve_ms;
-  ProgressBar bar("demo", frames, !as_json);
-  for (int f = 0; f <= frames; ++f) {
-    if (f > 0) {
-      double ms = 0;
-      for (int s = 0; s < substeps; ++s) {
-        VertexMatrix<Dim> qtilde = q + h * v;
-        qtilde.rowwise() += h * h * gravity;
-        const VertexMatrix<Dim> rhs = (mass / (h * h)).asDiagonal() * qtilde + rest_term;
-        const auto t0 = std::chrono::steady_clock::now();
-        const VertexMatrix<Dim> qn = system.solve(rhs, X);
-        ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0)
-                  .count();
-        v = (qn - q) / h;
-        q = qn;
-      }
-      solve_ms.push_back(ms / substeps);
-      bar.tick();
-    }
-    const VertexMatrix<Dim> u = q - X;
-    const VectorX umag = u.rowwise().norm();
-    const VectorX region = mats.regions().empty() ? VectorX()
-                                                  : Eigen::Map<const Eigen::VectorXi>(
-                                                        mats.regions().data(), mesh.num_elements())
-                                                        .cast<double>();
-    pvd.add_frame(f * substeps * h, mesh, q, {{"displacement", MatrixX(u)}},
-                  {{"region", region}, {"youngs_modulus", mats.youngs_moduli()}});
-    io::write_surface_obj(
-        (fs::path(out_dir) / "frames" / ("demo_" + std::to_string(f) + ".obj")).string(), mesh, q);
-    csv << f << ',' << f * substeps * h << ',' << u(tip, 1) << ',' << umag.maxCoeff() << ','
-        << (f > 0 ? solve_ms.back() : 0.0) << "\n";
-  }
-  bar.finish();
-
-  std::sort(solve_ms.begin(), solve_ms.end());
-  json j;
-  j["scene"] = "cantilever, 3 segments, middle 10x stiffer, gravity, p_e = I";
-  j["frames"] = frames;
-  j["steps"] = frames * substeps;
-  j["dofs"] = Dim * mesh.num_vertices();
-  j["vertices"] = mesh.num_vertices();
-  j["elements"] = mesh.num_elements();
-  j["factorizations"] = system.factorization_count();
-  j["median_solve_ms"] = solve_ms.empty() ? 0.0 : solve_ms[solve_ms.size() / 2];
-  j["final_tip_deflection_y"] = (q - X)(tip, 1);
-  j["out"] = out_dir;
-  std::ofstream(fs::path(out_dir) / "summary.json") << j.dump(2) << "\n";
-  if (as_json)
+int cmd_run(const std::string& scene_path, std::optional<double> contrast,
+            diffphd::cli::RunOptions opt, bool as_json) {
+  const diffphd::io::SceneSpec scene = diffphd::io::load_scene(scene_path, contrast);
+  opt.progress = !as_json;
+  const json j = diffphd::cli::run_scene(scene, opt);
+  if (as_json) {
     std::cout << j.dump() << "\n";
-  else
-    std::cout << "demo: " << j["steps"] << " steps on " << j["vertices"] << " vertices / "
-              << j["elements"] << " tets, " << j["factorizations"]
-              << " factorization, median solve " << j["median_solve_ms"].get<double>()
-              << " ms, tip deflection " << j["final_tip_deflection_y"].get<double>() << " m\n"
-              << "  wrote " << out_dir << "/frames/demo.pvd, OBJ frames, stats.csv, summary.json\n";
-  return 0;
+  } else {
+    std::cout << "run " << j["name"].get<std::string>() << ": " << j["steps"] << " steps, "
+              << j["converged_steps"] << " converged, mean " << j["mean_iterations"].get<double>()
+              << " / max " << j["max_iterations"] << " iterations, "
+              << 1e3 * j["median_seconds_per_step"].get<double>() << " ms per step (median), "
+              << j["vertices"] << " vertices / " << j["elements"] << " elements, contrast "
+              << j["contrast"].get<double>() << "x\n";
+    if (!opt.out_dir.empty())
+      std::cout << "  wrote " << opt.out_dir << "/frames/" << j["name"].get<std::string>()
+                << ".pvd, OBJ frames, stats.csv, summary.json\n";
+    if (j.contains("error")) std::cout << "  stopped: " << j["error"].get<std::string>() << "\n";
+  }
+  return j["status"] == "ok" ? 0 : 3;
 }
 
 }  // namespace
@@ -186,22 +95,44 @@ int main(int argc, char** argv) {
       ->required();
   info->add_flag("--json", json_out, "Print one JSON object on stdout");
 
-  std::string out_dir = "out/demo";
-  int frames = 60, substeps = 1;
-  auto* demo = app.add_subcommand("demo", "Run the Foundation demo scene (frames + stats)");
-  demo->add_option("--out", out_dir, "Output directory")->capture_default_str();
-  demo->add_option("--frames", frames, "Frames to simulate")
-      ->check(CLI::PositiveNumber)
-      ->capture_default_str();
-  demo->add_option("--substeps", substeps, "Time steps per frame")
-      ->check(CLI::PositiveNumber)
-      ->capture_default_str();
-  demo->add_flag("--json", json_out, "Print the summary as one JSON object on stdout");
+  std::string scene_path, out_dir;
+  std::optional<double> contrast, eps_rel;
+  std::optional<int> frames, anderson, max_iterations;
+  std::string routing;
+  bool no_frames = false;
+  auto* run = app.add_subcommand("run", "Simulate a scene file (frames, per-step stats, summary)");
+  run->add_option("SCENE", scene_path, "Scene file (JSON, see docs/scenes.md)")->required();
+  run->add_option("--out", out_dir, "Output directory (frames/, stats.csv, summary.json)");
+  run->add_option("--frames", frames, "Frames to simulate (default: the scene's)")
+      ->check(CLI::PositiveNumber);
+  run->add_option("--contrast", contrast, "Stiffness factor of the scene's contrast regions")
+      ->check(CLI::PositiveNumber);
+  run->add_option("--anderson", anderson, "Anderson window m (0 = plain PD, -1 = auto)")
+      ->check(CLI::Range(-1, 50));
+  run->add_option("--eps-rel", eps_rel, "Dual-gate relative tolerance")->check(CLI::PositiveNumber);
+  run->add_option("--max-iterations", max_iterations, "PD iterations per step")
+      ->check(CLI::PositiveNumber);
+  run->add_option("--routing", routing, "stiffness-aware | per-element-prox | uniform")
+      ->check(CLI::IsMember({"stiffness-aware", "per-element-prox", "uniform"}));
+  run->add_flag("--no-frames", no_frames, "Write stats and summary only");
+  run->add_flag("--json", json_out, "Print the summary as one JSON object on stdout");
 
   CLI11_PARSE(app, argc, argv);
   try {
     if (*info) return cmd_mesh_info(mesh_path, json_out);
-    if (*demo) return cmd_demo(out_dir, frames, substeps, json_out);
+    if (*run) {
+      diffphd::cli::RunOptions opt;
+      opt.out_dir = out_dir;
+      opt.frames = frames;
+      opt.anderson = anderson;
+      opt.eps_rel = eps_rel;
+      opt.max_iterations = max_iterations;
+      opt.write_frames = !no_frames;
+      if (routing == "stiffness-aware") opt.routing = diffphd::io::Routing::StiffnessAware;
+      if (routing == "per-element-prox") opt.routing = diffphd::io::Routing::PerElementProx;
+      if (routing == "uniform") opt.routing = diffphd::io::Routing::Uniform;
+      return cmd_run(scene_path, contrast, opt, json_out);
+    }
   } catch (const diffphd::InputError& e) {
     std::cerr << "diffphd: error: " << e.what() << "\n";
     return 2;

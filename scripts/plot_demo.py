@@ -1,5 +1,6 @@
 #!/usr/bin/python3
-"""Draws the demo chart from stats.csv: tip deflection and max displacement over time."""
+"""Draws the chart of a `diffphd run` from its stats.csv: the largest displacement over time,
+and the PD iterations each step needed (with the steps that did not converge marked)."""
 import csv
 import sys
 
@@ -9,28 +10,33 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 
-def main(stats_path: str, png_path: str) -> None:
+def main(stats_path: str, png_path: str, title: str) -> None:
     with open(stats_path, newline="") as f:
         rows = list(csv.DictReader(f))
     if not rows:
         sys.exit(f"{stats_path}: no rows")
     t = [float(r["time"]) for r in rows]
-    tip = [float(r["tip_deflection_y"]) for r in rows]
     umax = [float(r["max_displacement"]) for r in rows]
-    fig, ax = plt.subplots(figsize=(7, 4))
-    ax.plot(t, tip, label="tip deflection (y)")
-    ax.plot(t, umax, "--", label="max |displacement|")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("[m]")
-    ax.set_title("three-segment cantilever (middle 10x stiffer) under gravity", fontsize=10)
-    ax.grid(True, alpha=0.3)
-    ax.legend()
+    its = [int(r["iterations"]) for r in rows]
+    bad = [(ti, it) for ti, it, r in zip(t, its, rows) if r["converged"] != "1"]
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
+    ax1.plot(t, umax)
+    ax1.set_ylabel("max |displacement| [m]")
+    ax1.set_title(title, fontsize=10)
+    ax1.grid(True, alpha=0.3)
+    ax2.plot(t, its, drawstyle="steps-mid", label="PD iterations per step")
+    if bad:
+        ax2.plot(*zip(*bad), "rx", label="did not converge")
+    ax2.set_xlabel("time [s]")
+    ax2.set_ylabel("iterations")
+    ax2.grid(True, alpha=0.3)
+    ax2.legend()
     fig.tight_layout()
     fig.savefig(png_path, dpi=120)
     print(f"plot_demo: wrote {png_path}")
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 3:
-        sys.exit("usage: plot_demo.py STATS_CSV OUT_PNG")
-    main(sys.argv[1], sys.argv[2])
+    if len(sys.argv) not in (3, 4):
+        sys.exit("usage: plot_demo.py STATS_CSV OUT_PNG [TITLE]")
+    main(sys.argv[1], sys.argv[2], sys.argv[3] if len(sys.argv) == 4 else "diffphd run")

@@ -1,0 +1,4 @@
+// Explicit instantiation of run_scene for one energy (its own translation unit).
+#include "scene_run.hpp"
+
+DIFFPHD_CLI_DEFINE_RUN(diffphd::Energies<diffphd::NeoHookeanProx, diffphd::LogVolume>)

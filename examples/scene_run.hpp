@@ -1,0 +1,258 @@
+#pragma once
+// `diffphd run`: a scene file through the forward solver, with frames, per-step stats and a
+// JSON summary. run_scene<Dim, Energy> is explicitly instantiated per energy in
+// examples/run_*.cpp (one translation unit each, so they build in parallel).
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include <diffphd/energy/energy.hpp>
+#include <diffphd/io/io.hpp>
+#include <diffphd/io/scene.hpp>
+#include <diffphd/solver/solver.hpp>
+
+#include "progress.hpp"
+
+namespace diffphd::cli {
+
+/// Command-line overrides of a scene's settings; unset = the scene's value.
+struct RunOptions {
+  std::string out_dir;          ///< empty: write nothing
+  std::optional<int> frames;    ///< --frames
+  std::optional<int> anderson;  ///< --anderson
+  std::optional<double> eps_rel;
+  std::optional<int> max_iterations;
+  std::optional<io::Routing> routing;
+  bool write_frames = true;  ///< VTU/PVD and OBJ per frame (stats are always written)
+  bool progress = true;      ///< progress bar on a terminal
+};
+
+/// Runs the scene; returns the summary. Throws InputError on bad scenes.
+template <int Dim, class Energy>
+nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt);
+
+/// Picks Dim and the energy from the scene and runs it.
+nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt);
+
+// ---- implementation -------------------------------------------------------------------------
+
+inline WeightRouting to_weight_routing(io::Routing r) {
+  switch (r) {
+    case io::Routing::PerElementProx:
+      return WeightRouting::PerElementProx;
+    case io::Routing::Uniform:
+      return WeightRouting::Uniform;
+    default:
+      return WeightRouting::StiffnessAware;
+  }
+}
+
+inline std::string frame_file(const std::string& prefix, int frame, const std::string& ext) {
+  char digits[16];
+  std::snprintf(digits, sizeof digits, "%06d", frame);
+  return prefix + digits + ext;
+}
+
+template <int Dim, class Energy>
+nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
+  namespace fs = std::filesystem;
+  using json = nlohmann::json;
+  const auto built = io::build_mesh_with_regions<Dim>(scene);
+  const SimplicialMesh<Dim>& mesh = built.mesh;
+  const MaterialField materials = io::build_materials<Dim>(scene, mesh, built.region);
+
+  SolverOptions so;
+  so.h = scene.h;
+  so.alpha = scene.solver.alpha;
+  so.beta0 = scene.solver.beta0;
+  so.anderson_window = opt.anderson.value_or(scene.solver.anderson_window);
+  so.eps_rel = opt.eps_rel.value_or(scene.solver.eps_rel);
+  so.eps_abs = scene.solver.eps_abs;
+  so.max_iterations = opt.max_iterations.value_or(scene.solver.max_iterations);
+  const io::Routing routing = opt.routing.value_or(scene.solver.routing);
+  so.routing = to_weight_routing(routing);
+  so.gravity.setZero();
+  if (scene.gravity.size() > 0) so.gravity.head<Dim>() = scene.gravity.head<Dim>();
+
+  Solver<Dim, Energy> sim(mesh, materials, so);
+  const auto mask = io::fixed_mask<Dim>(scene, mesh);
+  for (Index v = 0; v < mesh.num_vertices(); ++v) {
+    std::array<bool, Dim> axes;
+    bool any = false;
+    for (int k = 0; k < Dim; ++k) any |= (axes[k] = mask(v, k));
+    if (any) sim.fix_vertices({v}, axes);
+  }
+  sim.set_state(mesh.rest_positions(), io::initial_velocities<Dim>(scene, mesh, materials));
+
+  // Drivers start at their `start` time from the positions reached then (scene semantics: free
+  // before start), so each is handed to the solver when the clock reaches it.
+  std::vector<bool> driver_added(scene.drivers.size(), false);
+  auto add_due_drivers = [&](double t) {
+    for (size_t i = 0; i < scene.drivers.size(); ++i) {
+      const io::DriverSpec& d = scene.drivers[i];
+      if (driver_added[i] || t + 1e-12 * scene.h < d.start) continue;
+      Driver<Dim> drv;
+      drv.vertices = io::select_vertices(d.vertices, mesh);
+      drv.start = d.start;
+      drv.stop = d.stop;
+      drv.release_at_stop = d.release_at_stop;
+      if (d.kind == io::DriverSpec::Kind::Twist) {
+        drv.kind = Driver<Dim>::Kind::Twist;
+        drv.axis = Vec<3>::Unit(Dim == 3 ? d.axis : 2);
+        drv.angular_velocity = d.angular_velocity;
+        Vec<Dim> c = Vec<Dim>::Zero();
+        if (d.center) {
+          c = d.center->head<Dim>();
+        } else {
+          for (Index v : drv.vertices) c += sim.positions().row(v).transpose();
+          c /= static_cast<double>(drv.vertices.size());
+        }
+        drv.center.setZero();
+        drv.center.template head<Dim>() = c;
+      } else {
+        drv.kind = Driver<Dim>::Kind::Pull;
+        drv.velocity.setZero();
+        drv.velocity.template head<Dim>() = d.velocity.template head<Dim>();
+      }
+      sim.add_driver(std::move(drv));
+      driver_added[i] = true;
+    }
+  };
+  std::vector<std::vector<Index>> force_vertices;
+  for (const io::ForceSpec& f : scene.forces)
+    force_vertices.push_back(io::select_vertices(f.vertices, mesh));
+  auto apply_forces = [&](double t) {
+    VertexMatrix<Dim> F = VertexMatrix<Dim>::Zero(mesh.num_vertices(), Dim);
+    for (size_t i = 0; i < scene.forces.size(); ++i) {
+      const io::ForceSpec& f = scene.forces[i];
+      if (t < f.start || t >= f.stop) continue;
+      const VectorX fv = io::per_vertex_force(f, static_cast<Index>(force_vertices[i].size()));
+      for (Index v : force_vertices[i]) F.row(v) += fv.head<Dim>().transpose();
+    }
+    sim.set_external_forces(F);
+  };
+
+  const int frames = opt.frames.value_or(scene.output.frames);
+  const int substeps = scene.output.substeps;
+  const std::string name = scene.output.name.empty() ? "scene" : scene.output.name;
+  std::optional<io::PvdWriter> pvd;
+  std::ofstream csv;
+  if (!opt.out_dir.empty()) {
+    fs::create_directories(fs::path(opt.out_dir) / "frames");
+    if (opt.write_frames) pvd.emplace((fs::path(opt.out_dir) / "frames").string(), name);
+    csv.open(fs::path(opt.out_dir) / "stats.csv");
+    if (!csv) throw InputError("cannot write " + (fs::path(opt.out_dir) / "stats.csv").string());
+    csv << "frame,step,time,iterations,primal_ratio,dual_ratio,converged,status,aa_resets,"
+           "seconds,kinetic_energy,min_jacobian,max_displacement\n";
+  }
+  Eigen::VectorXd region(mesh.num_elements()), E = materials.youngs_moduli();
+  for (Index e = 0; e < mesh.num_elements(); ++e) region[e] = materials[e].region;
+  auto write_frame = [&](int f) {
+    if (!pvd) return;
+    const VertexMatrix<Dim> u = sim.positions() - mesh.rest_positions();
+    pvd->add_frame(sim.time(), mesh, sim.positions(), {{"displacement", Eigen::MatrixXd(u)}},
+                   {{"region", region}, {"youngs_modulus", E}});
+    io::write_surface_obj(
+        (fs::path(opt.out_dir) / "frames" / frame_file(name + "_", f, ".obj")).string(), mesh,
+        sim.positions());
+  };
+
+  write_frame(0);
+  long steps = 0, converged_steps = 0, iter_sum = 0;
+  int iter_max = 0, converged_frames = 0, aa_resets = 0;
+  double seconds = 0, min_j = sim.min_jacobian();
+  std::vector<double> step_seconds;
+  std::string failure;
+  ProgressBar bar("run " + name, frames, opt.progress);
+  for (int f = 1; f <= frames && failure.empty(); ++f) {
+    bool frame_ok = true;
+    for (int s = 0; s < substeps; ++s) {
+      add_due_drivers(sim.time());
+      apply_forces(sim.time());
+      const StepReport r = sim.step();
+      ++steps;
+      iter_sum += r.iterations;
+      iter_max = std::max(iter_max, r.iterations);
+      aa_resets += r.aa_resets;
+      seconds += r.seconds;
+      step_seconds.push_back(r.seconds);
+      converged_steps += r.converged;
+      frame_ok = frame_ok && r.converged;
+      const double mj = sim.min_jacobian();
+      min_j = std::min(min_j, mj);
+      if (csv)
+        csv << f << ',' << steps << ',' << sim.time() << ',' << r.iterations << ','
+            << r.primal_ratio << ',' << r.dual_ratio << ',' << r.converged << ','
+            << to_string(r.status) << ',' << r.aa_resets << ',' << r.seconds << ','
+            << sim.kinetic_energy() << ',' << mj << ','
+            << (sim.positions() - mesh.rest_positions()).rowwise().norm().maxCoeff() << '\n';
+      if (r.status == StepStatus::NonFinite) {
+        failure = "step " + std::to_string(steps) + ": " + r.message;
+        break;
+      }
+    }
+    converged_frames += frame_ok;
+    if (failure.empty()) write_frame(f);
+    bar.tick();
+  }
+  bar.finish();
+  std::sort(step_seconds.begin(), step_seconds.end());
+
+  json j;
+  j["scene"] = scene.file;
+  j["name"] = name;
+  j["dim"] = Dim;
+  j["energy"] = io::to_string(scene.solver.energy);
+  j["routing"] = io::to_string(routing);
+  j["contrast"] = materials.stiffness_contrast();
+  j["anderson_window"] = sim.anderson_window();
+  j["eps_rel"] = so.eps_rel;
+  j["h"] = so.h;
+  j["frames"] = frames;
+  j["substeps"] = substeps;
+  j["steps"] = steps;
+  j["converged_frames"] = converged_frames;
+  j["converged_steps"] = converged_steps;
+  j["mean_iterations"] = steps ? double(iter_sum) / steps : 0.0;
+  j["max_iterations"] = iter_max;
+  j["aa_resets"] = aa_resets;
+  j["seconds_per_step"] = steps ? seconds / steps : 0.0;
+  j["median_seconds_per_step"] = step_seconds.empty() ? 0.0 : step_seconds[step_seconds.size() / 2];
+  j["dofs"] = Dim * mesh.num_vertices();
+  j["vertices"] = mesh.num_vertices();
+  j["elements"] = mesh.num_elements();
+  j["factorizations"] = sim.factorization_count();
+  j["min_jacobian"] = min_j;
+  j["status"] = failure.empty() ? "ok" : "non-finite";
+  if (!failure.empty()) j["error"] = failure;
+  if (!opt.out_dir.empty()) {
+    j["out"] = opt.out_dir;
+    std::ofstream(fs::path(opt.out_dir) / "summary.json") << j.dump(2) << "\n";
+  }
+  return j;
+}
+
+}  // namespace diffphd::cli
+
+// One explicit instantiation per energy lives in examples/run_<energy>.cpp.
+#define DIFFPHD_CLI_DECLARE_RUN(...)                                      \
+  extern template nlohmann::json diffphd::cli::run_scene<2, __VA_ARGS__>( \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);    \
+  extern template nlohmann::json diffphd::cli::run_scene<3, __VA_ARGS__>( \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);
+#define DIFFPHD_CLI_DEFINE_RUN(...)                                    \
+  template nlohmann::json diffphd::cli::run_scene<2, __VA_ARGS__>(     \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&); \
+  template nlohmann::json diffphd::cli::run_scene<3, __VA_ARGS__>(     \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);
+
+DIFFPHD_CLI_DECLARE_RUN(diffphd::Energies<diffphd::Corotated, diffphd::Volume>)
+DIFFPHD_CLI_DECLARE_RUN(diffphd::Corotated)
+DIFFPHD_CLI_DECLARE_RUN(diffphd::NeoHookeanProx)
+DIFFPHD_CLI_DECLARE_RUN(diffphd::Energies<diffphd::NeoHookeanProx, diffphd::LogVolume>)
