@@ -613,6 +613,127 @@ TEMPLATE_TEST_CASE_SIG("Energies<Corotated, Volume> sums its parts", "[energy][c
   CHECK((EM::weighted_projection<double, Dim>(F, kParams, kMeans) - want).norm() < 1e-13);
 }
 
+TEMPLATE_TEST_CASE_SIG("project_svd / differential_svd agree with project / differential",
+                       "[energy][composite][svd]", ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(141 + Dim);
+  STATIC_REQUIRE(detail::has_project_svd<Corotated, Dim>::value);
+  STATIC_REQUIRE(detail::has_project_svd<Volume, Dim>::value);
+  STATIC_REQUIRE(detail::has_project_svd<NeoHookeanProx, Dim>::value);
+  STATIC_REQUIRE(detail::has_project_svd<LogVolume, Dim>::value);
+  STATIC_REQUIRE(detail::has_differential_svd<Corotated, Dim>::value);
+  STATIC_REQUIRE(detail::has_differential_svd<Volume, Dim>::value);
+  STATIC_REQUIRE(detail::has_differential_svd<NeoHookeanProxPerElement, Dim>::value);
+  STATIC_REQUIRE(!detail::has_project_svd<Muscle, Dim>::value);
+  STATIC_REQUIRE(!detail::has_differential_svd<Muscle, Dim>::value);
+  for (Family fam :
+       {Family::NearIdentity, Family::LargeStretch, Family::Compression, Family::Inverted}) {
+    INFO(family_name(fam));
+    for (int trial = 0; trial < 3; ++trial) {
+      const MatD<Dim> F = sample<Dim>(rng, fam);
+      MatD<Dim> U, V;
+      VecD<Dim> sigma;
+      svd_rv<double, Dim>(F, U, sigma, V);
+      auto same = [](const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
+        CHECK((a - b).norm() <= 1e-14 * std::max(1.0, b.norm()));
+      };
+      same(Corotated::project_svd<double, Dim>(F, U, sigma, V, kParams, kMeans),
+           Corotated::project<double, Dim>(F, kParams, kMeans));
+      same(Volume::project_svd<double, Dim>(F, U, sigma, V, kParams, kMeans),
+           Volume::project<double, Dim>(F, kParams, kMeans));
+      same(NeoHookeanProx::project_svd<double, Dim>(F, U, sigma, V, kParams, kMeans),
+           NeoHookeanProx::project<double, Dim>(F, kParams, kMeans));
+      same(LogVolume::project_svd<double, Dim>(F, U, sigma, V, kParams, kMeans),
+           LogVolume::project<double, Dim>(F, kParams, kMeans));
+      same(Corotated::differential_svd<double, Dim>(F, U, sigma, V, kParams, kMeans),
+           Corotated::differential<double, Dim>(F, kParams, kMeans));
+      same(Volume::differential_svd<double, Dim>(F, U, sigma, V, kParams, kMeans),
+           Volume::differential<double, Dim>(F, kParams, kMeans));
+      same(NeoHookeanProx::differential_svd<double, Dim>(F, U, sigma, V, kParams, kMeans),
+           NeoHookeanProx::differential<double, Dim>(F, kParams, kMeans));
+      same(NeoHookeanProx::differential_filtered_svd<double, Dim>(F, U, sigma, V, kParams, kMeans,
+                                                                  0.5),
+           NeoHookeanProx::differential_filtered<double, Dim>(F, kParams, kMeans, 0.5));
+    }
+  }
+}
+
+TEMPLATE_TEST_CASE_SIG("Energies with prox and fibre terms sums its parts (one shared SVD)",
+                       "[energy][composite][svd]", ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(151 + Dim);
+  using E = Energies<Corotated, Volume, NeoHookeanProx, Muscle>;
+  STATIC_REQUIRE(E::template shares_svd_in_projection<Dim>);
+  STATIC_REQUIRE(E::template shares_svd_in_differential<Dim>);
+  STATIC_REQUIRE(!Energies<Muscle>::template shares_svd_in_projection<Dim>);
+  for (Family fam :
+       {Family::NearIdentity, Family::LargeStretch, Family::Compression, Family::Inverted}) {
+    INFO(family_name(fam));
+    const MatD<Dim> F = sample<Dim>(rng, fam);
+    ProjectStats st_sum, st_e;
+    const MatD<Dim> want =
+        Corotated::element_weight(kParams) * Corotated::project<double, Dim>(F, kParams, kMeans) +
+        Volume::element_weight(kParams) *
+            Volume::project<double, Dim>(F, kParams, kMeans, &st_sum) +
+        NeoHookeanProx::element_weight(kParams) *
+            NeoHookeanProx::project<double, Dim>(F, kParams, kMeans, &st_sum) +
+        Muscle::element_weight(kParams) * Muscle::project<double, Dim>(F, kParams, kMeans);
+    const MatD<Dim> got = E::weighted_projection<double, Dim>(F, kParams, kMeans, &st_e);
+    CHECK((got - want).norm() <= 1e-13 * std::max(1.0, want.norm()));
+    CHECK(st_e.projections == 2);
+    CHECK(st_e.projections == st_sum.projections);
+    CHECK(st_e.newton_iterations == st_sum.newton_iterations);
+    const DiffD<Dim> Dwant =
+        Corotated::element_weight(kParams) *
+            Corotated::differential<double, Dim>(F, kParams, kMeans) +
+        Volume::element_weight(kParams) * Volume::differential<double, Dim>(F, kParams, kMeans) +
+        NeoHookeanProx::element_weight(kParams) *
+            NeoHookeanProx::differential<double, Dim>(F, kParams, kMeans) +
+        Muscle::element_weight(kParams) * Muscle::differential<double, Dim>(F, kParams, kMeans);
+    const DiffD<Dim> Dgot = E::weighted_differential<double, Dim>(F, kParams, kMeans);
+    CHECK((Dgot - Dwant).norm() <= 1e-12 * std::max(1.0, Dwant.norm()));
+  }
+}
+
+TEMPLATE_TEST_CASE_SIG("abs_eig_solve: direct SPD solve agrees with the eigen path",
+                       "[energy][newton]", ((int Dim), Dim), 2, 3) {
+  std::mt19937 rng(161 + Dim);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  // The eigen path written out: Q diag(1 / max(|kappa|, floor)) Q^T b.
+  auto eig_solve = [](const MatD<Dim>& H, const VecD<Dim>& b) {
+    VecD<Dim> kappa;
+    MatD<Dim> Q;
+    sym_eig<double, Dim>(H, kappa, Q);
+    const double kmax = kappa.cwiseAbs().maxCoeff();
+    const double floor = std::sqrt(std::numeric_limits<double>::epsilon()) * kmax;
+    VecD<Dim> y = Q.transpose() * b;
+    for (int i = 0; i < Dim; ++i) y(i) /= std::max(std::abs(kappa(i)), floor);
+    return VecD<Dim>(Q * y);
+  };
+  int accepted = 0;
+  for (int trial = 0; trial < 400; ++trial) {
+    VecD<Dim> kappa, b;
+    for (int i = 0; i < Dim; ++i) b(i) = u(rng);
+    const int kind = trial % 4;
+    for (int i = 0; i < Dim; ++i) kappa(i) = std::pow(10.0, 3.0 * u(rng));
+    if (kind == 1) kappa(0) = -kappa(0);  // indefinite: must be rejected
+    if (kind == 2) kappa(Dim - 1) = 1e-9 * kappa.head(Dim - 1).maxCoeff();  // near the floor
+    const MatD<Dim> H = with_eigenvalues<Dim>(rng, kappa);
+    VecD<Dim> x;
+    const bool fast = detail::solve_if_well_conditioned_spd<double, Dim>(H, b, x);
+    INFO("kind " << kind << " kappa " << kappa.transpose() << "\nH\n" << H);
+    const double cond = kappa.cwiseAbs().maxCoeff() / kappa.cwiseAbs().minCoeff();
+    if (kind == 1 || kind == 2) CHECK(!fast);
+    if (kind != 1 && kind != 2 && cond < 1e4) CHECK(fast);  // accepted up to cond ~ 1e5 at least
+    const VecD<Dim> ref = eig_solve(H, b);
+    const VecD<Dim> got = detail::abs_eig_solve<double, Dim>(H, b);
+    CHECK((got - ref).norm() <= 1e-12 * cond * ref.norm());
+    if (fast) {
+      ++accepted;
+      CHECK((x - ref).norm() <= 1e-12 * cond * ref.norm());
+    }
+  }
+  CHECK(accepted > 100);
+}
+
 TEMPLATE_TEST_CASE_SIG("Single precision projections agree with double", "[energy][float]",
                        ((int Dim), Dim), 2, 3) {
   std::mt19937 rng(131 + Dim);

@@ -349,6 +349,40 @@ TEST_CASE("svd_rv: conventions on simple cases", "[small_matrix]") {
   CHECK((s2 - Eigen::Vector2d(2, -1)).norm() <= 1e-15);
 }
 
+TEST_CASE("small_matrix: algebraic replacements of the trigonometric closed forms",
+          "[small_matrix]") {
+  // largest_trig_cubic_root(h) = 2 cos(acos(h) / 3), the largest root of b^3 - 3 b - 2 h.
+  double worst_root = 0, worst_residual = 0;
+  for (int k = 0; k <= 100000; ++k) {
+    const double h = k / 100000.0;
+    const double b = diffphd::detail::largest_trig_cubic_root(h);
+    worst_root = std::max(worst_root, std::abs(b - 2 * std::cos(std::acos(h) / 3)));
+    worst_residual = std::max(worst_residual, std::abs(b * b * b - 3 * b - 2 * h));
+  }
+  std::printf("largest_trig_cubic_root: max |b - 2 cos(acos(h)/3)| %.2e, max residual %.2e\n",
+              worst_root, worst_residual);
+  CHECK(worst_root <= 1e-15);
+  CHECK(worst_residual <= 1e-14);
+  CHECK(diffphd::detail::largest_trig_cubic_root(0.0) == Approx(std::sqrt(3.0)).epsilon(1e-16));
+  CHECK(diffphd::detail::largest_trig_cubic_root(1.0) == Approx(2.0).epsilon(1e-16));
+  // half_angle_rotation(cos t, sin t) = (cos(t/2), sin(t/2)) with t/2 in (-pi/2, pi/2].
+  std::mt19937 rng(7);
+  const double kPi = std::acos(-1.0);
+  std::uniform_real_distribution<double> u(-kPi, kPi);
+  double worst_half = 0;
+  std::vector<double> angles = {0.0, kPi, -kPi + 1e-15, kPi / 2, -kPi / 2, 1e-300, -1e-300};
+  for (int k = 0; k < 10000; ++k) angles.push_back(u(rng));
+  for (double t : angles) {
+    double ch, sh;
+    diffphd::detail::half_angle_rotation(std::cos(t), std::sin(t), ch, sh);
+    const double th = std::atan2(std::sin(t), std::cos(t)) / 2;
+    worst_half = std::max({worst_half, std::abs(ch - std::cos(th)), std::abs(sh - std::sin(th))});
+    CHECK(ch >= 0);
+  }
+  std::printf("half_angle_rotation: max error %.2e\n", worst_half);
+  CHECK(worst_half <= 1e-15);
+}
+
 TEST_CASE("small_matrix: float instantiation", "[small_matrix]") {
   std::mt19937 rng(5);
   double worst_eig = 0, worst_svd = 0, worst_ortho = 0;

@@ -48,6 +48,14 @@ MatD<Dim> with_stretches(std::mt19937& rng, double a, double b, double c) {
   return with_stretches<Dim>(rng, take<Dim>(a, b, c));
 }
 
+/// Q diag(l) Q^T with a random rotation Q, symmetrised exactly.
+template <int Dim>
+MatD<Dim> with_eigenvalues(std::mt19937& rng, const VecD<Dim>& l) {
+  const MatD<Dim> Q = random_rotation<Dim>(rng);
+  const MatD<Dim> A = Q * l.asDiagonal() * Q.transpose();
+  return (0.5 * (A + A.transpose())).eval();
+}
+
 /// vec(A): the column-major flattening.
 template <int Dim>
 Eigen::Matrix<double, Dim * Dim, 1> vec(const MatD<Dim>& A) {

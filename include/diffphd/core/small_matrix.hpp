@@ -138,12 +138,48 @@ DIFFPHD_HOST_DEVICE inline void sort_svd(Eigen::Matrix<Scalar, Dim, Dim>& U,
       }
 }
 
+/// (cos(t/2), sin(t/2)) of the angle t in (-pi, pi] with (cos t, sin t) = (c, s), c^2 + s^2 = 1:
+/// the half angle in (-pi/2, pi/2], as atan2(s, c) / 2 would give, without trigonometric calls.
+/// The square root is taken of 1 + |c| (no cancellation), the other entry from sin t =
+/// 2 sin(t/2) cos(t/2).
+template <typename Scalar>
+DIFFPHD_HOST_DEVICE inline void half_angle_rotation(const Scalar& c, const Scalar& s, Scalar& ch,
+                                                    Scalar& sh) {
+  using M = detail::SmallMath<Scalar>;
+  if (c >= Scalar(0)) {
+    ch = M::sqrt(Scalar(0.5) * (Scalar(1) + c));
+    sh = Scalar(0.5) * s / ch;
+  } else {
+    sh = M::sqrt(Scalar(0.5) * (Scalar(1) - c));
+    if (s < Scalar(0)) sh = -sh;
+    ch = Scalar(0.5) * s / sh;
+  }
+}
+
+/// The largest root of beta^3 - 3 beta - 2 h = 0 for h in [0, 1], i.e. 2 cos(acos(h) / 3), in
+/// [sqrt 3, 2]: a polynomial first guess (error below 2e-5) refined by two Newton steps (the
+/// root is simple, f' = 3 beta^2 - 3 >= 6, and Newton's error constant is below 1, so the
+/// result is at rounding level).
+template <typename Scalar>
+DIFFPHD_HOST_DEVICE inline Scalar largest_trig_cubic_root(const Scalar& h) {
+  // Interpolant of 2 cos(acos(h) / 3) at the 5 Chebyshev nodes of [0, 1] (max error 1.0e-5).
+  Scalar beta = Scalar(1.732060864045382) +
+                h * (Scalar(0.33282344357519167) +
+                     h * (Scalar(-0.09184386626152735) +
+                          h * (Scalar(0.03502437715042064) + h * Scalar(-0.008070797433310501))));
+  for (int it = 0; it < 2; ++it)
+    beta -= (beta * beta * beta - Scalar(3) * beta - Scalar(2) * h) /
+            (Scalar(3) * beta * beta - Scalar(3));
+  return beta;
+}
+
 }  // namespace detail
 
 /// \brief Eigen-decomposition of a symmetric 2x2 matrix, A = Q diag(lambda) Q^T.
 ///
 /// Closed form: lambda = (a + c)/2 +- hypot((a - c)/2, b), Q the rotation by
-/// theta = atan2(2 b, a - c) / 2. Only the lower triangle of A is read.
+/// theta = atan2(2 b, a - c) / 2, evaluated algebraically (no trigonometric calls) by
+/// detail::half_angle_rotation. Only the lower triangle of A is read.
 /// \param[in]  A       2 x 2 symmetric
 /// \param[out] lambda  2 eigenvalues, lambda(0) >= lambda(1)
 /// \param[out] Q       2 x 2 rotation (det +1) whose columns are the eigenvectors
@@ -159,8 +195,13 @@ DIFFPHD_HOST_DEVICE inline void sym_eig2(const Eigen::Matrix<Scalar, 2, 2>& A,
   const Scalar r = M::hypot(diff, b);
   lambda(0) = mean + r;
   lambda(1) = mean - r;
-  const Scalar theta = half * M::atan2(b, diff);
-  const Scalar cs = M::cos(theta), sn = M::sin(theta);
+  Scalar cs, sn;
+  if (r == Scalar(0)) {  // a multiple of the identity: atan2(0, 0) = 0
+    cs = Scalar(1);
+    sn = Scalar(0);
+  } else {
+    detail::half_angle_rotation(Scalar(diff / r), Scalar(b / r), cs, sn);
+  }
   Q(0, 0) = cs;
   Q(1, 0) = sn;
   Q(0, 1) = -sn;
@@ -217,13 +258,13 @@ DIFFPHD_HOST_DEVICE inline void sym_eig3(const Eigen::Matrix<Scalar, 3, 3>& A,
                                    B(2, 0) * (B(1, 0) * B(2, 1) - B(1, 1) * B(2, 0)));
   if (half_det > Scalar(1)) half_det = Scalar(1);
   if (half_det < Scalar(-1)) half_det = Scalar(-1);
-  const Scalar angle = M::acos(half_det) / Scalar(3);
-  const Scalar two_pi_3 = Scalar(2.09439510239319549230842892218633526);
-  // beta_max = 2 cos(angle) (gap to the others >= sqrt 3 when det B >= 0), beta_min =
-  // 2 cos(angle + 2 pi / 3) (gap >= sqrt 3 when det B <= 0).
+  // The eigenvalues of B solve beta^3 - 3 beta - 2 half_det = 0. beta_max = 2 cos(acos(h)/3)
+  // (gap to the others >= sqrt 3 when det B >= 0); beta_min = -beta_max(-h) (gap >= sqrt 3
+  // when det B <= 0). Both from detail::largest_trig_cubic_root (no acos/cos).
   const bool largest_separated = half_det >= Scalar(0);
-  const Scalar beta =
-      Scalar(2) * (largest_separated ? M::cos(angle) : M::cos(Scalar(angle + two_pi_3)));
+  const Scalar beta = largest_separated
+                          ? detail::largest_trig_cubic_root(half_det)
+                          : Scalar(-detail::largest_trig_cubic_root(Scalar(-half_det)));
 
   // Eigenvector of the well-separated eigenvalue: the largest cross product of two rows of
   // (B - beta I), a column of its adjugate, of norm >= sqrt 3 in exact arithmetic.
@@ -294,7 +335,8 @@ DIFFPHD_HOST_DEVICE inline void sym_eig3(const Eigen::Matrix<Scalar, 3, 3>& A,
 ///
 /// With F = E I + H J + Fh K1 + G K2 (J the 90-degree rotation, K1 = diag(1, -1),
 /// K2 = [0 1; 1 0]): sigma = hypot(E, H) +- hypot(Fh, G), U = rot((a1 + a2)/2),
-/// V = rot((a1 - a2)/2), a1 = atan2(G, Fh), a2 = atan2(H, E).
+/// V = rot((a1 - a2)/2), a1 = atan2(G, Fh), a2 = atan2(H, E), evaluated algebraically (angle
+/// addition and detail::half_angle_rotation; U and V may both be negated, which is the same SVD).
 /// \param[in]  F      2 x 2
 /// \param[out] U      2 x 2 rotation
 /// \param[out] sigma  sigma(0) >= |sigma(1)|, sigma(0) >= 0, sign(sigma(1)) = sign(det F)
@@ -314,12 +356,21 @@ DIFFPHD_HOST_DEVICE inline void svd_rv2(const Eigen::Matrix<Scalar, 2, 2>& F,
   const Scalar Rn = M::hypot(Fh, G);
   sigma(0) = Qn + Rn;
   sigma(1) = Qn - Rn;
-  const Scalar a1 = M::atan2(G, Fh);
-  const Scalar a2 = M::atan2(H, E);
-  const Scalar phi = half * (a1 + a2);
-  const Scalar theta = half * (a1 - a2);
-  const Scalar cu = M::cos(phi), su = M::sin(phi);
-  const Scalar cv = M::cos(theta), sv = M::sin(theta);
+  // (cos, sin) of a1 and a2 (angle 0 where the vector vanishes).
+  Scalar c1 = Scalar(1), s1 = Scalar(0), c2 = Scalar(1), s2 = Scalar(0);
+  if (Rn != Scalar(0)) {
+    c1 = Fh / Rn;
+    s1 = G / Rn;
+  }
+  if (Qn != Scalar(0)) {
+    c2 = E / Qn;
+    s2 = H / Qn;
+  }
+  // U = rot(phi) with phi = (a1 + a2)/2 (mod pi), V = rot(a1 - phi): then phi - theta = a2
+  // (mod 2 pi). Taking phi + pi instead negates both U and V, which is again an SVD.
+  Scalar cu, su;
+  detail::half_angle_rotation(Scalar(c1 * c2 - s1 * s2), Scalar(s1 * c2 + c1 * s2), cu, su);
+  const Scalar cv = c1 * cu + s1 * su, sv = s1 * cu - c1 * su;
   U(0, 0) = cu;
   U(1, 0) = su;
   U(0, 1) = -su;

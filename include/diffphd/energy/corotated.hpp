@@ -23,27 +23,47 @@ struct Corotated {
     return weight(p.mu, p.lambda);
   }
 
+  /// p = R = U V^T from a precomputed svd_rv(F) = (U, sigma, V) (the entry point
+  /// Energies<...> uses to share one SVD between terms). `F`, `sigma`, `p`, `means`, `stats` are
+  /// unused.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project_svd(
+      const Eigen::Matrix<S, Dim, Dim>& /*F*/, const Eigen::Matrix<S, Dim, Dim>& U,
+      const Eigen::Matrix<S, Dim, 1>& /*sigma*/, const Eigen::Matrix<S, Dim, Dim>& V,
+      const ElementParams& /*p*/, const ProxMeans& /*means*/, ProjectStats* /*stats*/ = nullptr) {
+    return U * V.transpose();
+  }
+
   /// p = R = U V^T. `p`, `means`, `stats` are unused.
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project(const Eigen::Matrix<S, Dim, Dim>& F,
-                                                                const ElementParams& /*p*/,
-                                                                const ProxMeans& /*means*/,
-                                                                ProjectStats* /*stats*/ = nullptr) {
+                                                                const ElementParams& p,
+                                                                const ProxMeans& means,
+                                                                ProjectStats* stats = nullptr) {
     Eigen::Matrix<S, Dim, Dim> U, V;
     Eigen::Matrix<S, Dim, 1> sigma;
     svd_rv<S, Dim>(F, U, sigma, V);
-    return U * V.transpose();
+    return project_svd<S, Dim>(F, U, sigma, V, p, means, stats);
+  }
+
+  /// dR/dF from a precomputed svd_rv(F) = (U, sigma, V), Dim^2 x Dim^2 (column-major vec).
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential_svd(
+      const Eigen::Matrix<S, Dim, Dim>& /*F*/, const Eigen::Matrix<S, Dim, Dim>& U,
+      const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+      const ElementParams& /*p*/, const ProxMeans& /*means*/) {
+    return detail::spectral_differential<S, Dim>(U, sigma, V, Eigen::Matrix<S, Dim, 1>::Ones(),
+                                                 Eigen::Matrix<S, Dim, Dim>::Zero());
   }
 
   /// dR/dF, Dim^2 x Dim^2 (column-major vec).
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential(
-      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& /*p*/, const ProxMeans& /*means*/) {
+      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
     Eigen::Matrix<S, Dim, Dim> U, V;
     Eigen::Matrix<S, Dim, 1> sigma;
     svd_rv<S, Dim>(F, U, sigma, V);
-    return detail::spectral_differential<S, Dim>(U, sigma, V, Eigen::Matrix<S, Dim, 1>::Ones(),
-                                                 Eigen::Matrix<S, Dim, Dim>::Zero());
+    return differential_svd<S, Dim>(F, U, sigma, V, p, means);
   }
 
   /// weight / 2 ||F - R||^2 (per unit rest volume).

@@ -47,6 +47,57 @@ struct has_differential<
         std::declval<const ElementParams&>(), std::declval<const ProxMeans&>()))>>
     : std::true_type {};
 
+/// The optional entry points taking a precomputed svd_rv(F) = (U, sigma, V):
+/// `project_svd(F, U, sigma, V, p, means, stats)` and `differential_svd(F, U, sigma, V, p, means)`.
+template <class T, int Dim, class = void>
+struct has_project_svd : std::false_type {};
+template <class T, int Dim>
+struct has_project_svd<T, Dim,
+                       std::void_t<decltype(T::template project_svd<double, Dim>(
+                           std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+                           std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+                           std::declval<const Eigen::Matrix<double, Dim, 1>&>(),
+                           std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+                           std::declval<const ElementParams&>(), std::declval<const ProxMeans&>(),
+                           static_cast<ProjectStats*>(nullptr)))>> : std::true_type {};
+
+template <class T, int Dim, class = void>
+struct has_differential_svd : std::false_type {};
+template <class T, int Dim>
+struct has_differential_svd<
+    T, Dim,
+    std::void_t<decltype(T::template differential_svd<double, Dim>(
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const Eigen::Matrix<double, Dim, 1>&>(),
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const ElementParams&>(), std::declval<const ProxMeans&>()))>>
+    : std::true_type {};
+
+/// T's projection, through project_svd with the shared SVD when T offers it.
+template <class T, class S, int Dim>
+DIFFPHD_HOST_DEVICE inline Eigen::Matrix<S, Dim, Dim> project_with_svd(
+    const Eigen::Matrix<S, Dim, Dim>& F, const Eigen::Matrix<S, Dim, Dim>& U,
+    const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+    const ElementParams& p, const ProxMeans& means, ProjectStats* stats) {
+  if constexpr (has_project_svd<T, Dim>::value)
+    return T::template project_svd<S, Dim>(F, U, sigma, V, p, means, stats);
+  else
+    return T::template project<S, Dim>(F, p, means, stats);
+}
+
+/// T's differential, through differential_svd with the shared SVD when T offers it.
+template <class T, class S, int Dim>
+DIFFPHD_HOST_DEVICE inline Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential_with_svd(
+    const Eigen::Matrix<S, Dim, Dim>& F, const Eigen::Matrix<S, Dim, Dim>& U,
+    const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+    const ElementParams& p, const ProxMeans& means) {
+  if constexpr (has_differential_svd<T, Dim>::value)
+    return T::template differential_svd<S, Dim>(F, U, sigma, V, p, means);
+  else
+    return T::template differential<S, Dim>(F, p, means);
+}
+
 template <class T, class = void>
 struct acts_on_fibre : std::false_type {};
 template <class T>
@@ -89,6 +140,11 @@ struct TermChecks {
 ///   k p* m^T), scattered as V_e G_e^T vec(.);
 /// * for the backward pass: weighted_differential(F) = sum_k w_k dp_k/dF.
 ///
+/// A term may also offer `project_svd(F, U, sigma, V, p, means, stats)` and
+/// `differential_svd(F, U, sigma, V, p, means)`, taking the precomputed svd_rv(F) = U diag(sigma)
+/// V^T (Corotated, Volume and every StretchProxTerm do; Muscle needs no SVD): the composite then
+/// computes the SVD once per element instead of once per term.
+///
 /// A term that lacks a member fails to compile with a sentence saying which.
 ///
 /// Example:
@@ -124,23 +180,53 @@ struct Energies {
     return (0.0 + ... + (detail::acts_on_fibre<Terms>::value ? Terms::element_weight(p) : 0.0));
   }
 
-  /// sum_k w_k p_k(F), Dim x Dim.
+  /// True when some term offers project_svd / differential_svd: the composite then computes
+  /// svd_rv(F) once per element and hands it to those terms (the others get F).
+  template <int Dim>
+  static constexpr bool shares_svd_in_projection = (detail::has_project_svd<Terms, Dim>::value ||
+                                                    ...);
+  template <int Dim>
+  static constexpr bool shares_svd_in_differential =
+      (detail::has_differential_svd<Terms, Dim>::value || ...);
+
+  /// sum_k w_k p_k(F), Dim x Dim, summed in term order. One svd_rv(F) is shared by the terms that
+  /// offer project_svd (the same result as their own project()).
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> weighted_projection(
       const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means,
       ProjectStats* stats = nullptr) {
     Eigen::Matrix<S, Dim, Dim> out = Eigen::Matrix<S, Dim, Dim>::Zero();
-    ((out += S(Terms::element_weight(p)) * Terms::template project<S, Dim>(F, p, means, stats)),
-     ...);
+    if constexpr (shares_svd_in_projection<Dim>) {
+      Eigen::Matrix<S, Dim, Dim> U, V;
+      Eigen::Matrix<S, Dim, 1> sigma;
+      svd_rv<S, Dim>(F, U, sigma, V);
+      ((out += S(Terms::element_weight(p)) *
+               detail::project_with_svd<Terms, S, Dim>(F, U, sigma, V, p, means, stats)),
+       ...);
+    } else {
+      ((out += S(Terms::element_weight(p)) * Terms::template project<S, Dim>(F, p, means, stats)),
+       ...);
+    }
     return out;
   }
 
-  /// sum_k w_k dp_k/dF, Dim^2 x Dim^2 (column-major vec).
+  /// sum_k w_k dp_k/dF, Dim^2 x Dim^2 (column-major vec), summed in term order. One svd_rv(F)
+  /// is shared by the terms that offer differential_svd.
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> weighted_differential(
       const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
     Eigen::Matrix<S, Dim * Dim, Dim* Dim> out = Eigen::Matrix<S, Dim * Dim, Dim * Dim>::Zero();
-    ((out += S(Terms::element_weight(p)) * Terms::template differential<S, Dim>(F, p, means)), ...);
+    if constexpr (shares_svd_in_differential<Dim>) {
+      Eigen::Matrix<S, Dim, Dim> U, V;
+      Eigen::Matrix<S, Dim, 1> sigma;
+      svd_rv<S, Dim>(F, U, sigma, V);
+      ((out += S(Terms::element_weight(p)) *
+               detail::differential_with_svd<Terms, S, Dim>(F, U, sigma, V, p, means)),
+       ...);
+    } else {
+      ((out += S(Terms::element_weight(p)) * Terms::template differential<S, Dim>(F, p, means)),
+       ...);
+    }
     return out;
   }
 

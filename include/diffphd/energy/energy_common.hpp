@@ -197,13 +197,66 @@ DIFFPHD_HOST_DEVICE inline SMat<S, Dim> small_inverse(const SMat<S, Dim>& A) {
   return C / det;
 }
 
+/// \brief x = H^{-1} b by the adjugate when the symmetric H (lower triangle read) is certainly
+/// positive definite and well conditioned. With c = Dim max |H_ij| (>= tr H and >= lambda_max)
+/// and t = tau c, tau = 64 sqrt(eps) (about 1e-6 in double), it requires H_00 > t and
+/// * Dim = 2: det H > t c, so lambda_min >= det / tr > tau c;
+/// * Dim = 3: the leading 2x2 minor > t^2, det H > t^2 c and det H > t sigma_2 (sigma_2 the sum
+///   of the principal 2x2 minors, >= lambda_1 lambda_2), so lambda_min >= det / sigma_2 > tau c.
+/// Every bound on a minor is at least 64^2 eps c^k, far above its rounding error, so an accepted
+/// H is positive definite (Sylvester) with lambda_min > 64 sqrt(eps) lambda_max. Accepts at
+/// least every H with lambda_max / lambda_min < 1 / (9 tau) (about 1e5 in double).
+/// \return false (x untouched) when the test fails.
+template <class S, int Dim>
+DIFFPHD_HOST_DEVICE inline bool solve_if_well_conditioned_spd(const SMat<S, Dim>& H,
+                                                              const SVec<S, Dim>& b,
+                                                              SVec<S, Dim>& x) {
+  static_assert(Dim == 2 || Dim == 3, "solve_if_well_conditioned_spd: Dim must be 2 or 3");
+  SMat<S, Dim> A;
+  for (int j = 0; j < Dim; ++j)
+    for (int i = j; i < Dim; ++i) A(i, j) = A(j, i) = H(i, j);
+  const S c = S(Dim) * max_abs(A);
+  const S t = S(64) * SmallMath<S>::sqrt(eps_of<S>()) * c;
+  if (!(A(0, 0) > t)) return false;  // also rejects c = 0 and NaN
+  const S m2 = A(0, 0) * A(1, 1) - A(1, 0) * A(1, 0);
+  if constexpr (Dim == 2) {
+    if (!(m2 > t * c)) return false;
+    x(0) = (A(1, 1) * b(0) - A(1, 0) * b(1)) / m2;
+    x(1) = (A(0, 0) * b(1) - A(1, 0) * b(0)) / m2;
+  } else {
+    if (!(m2 > t * t)) return false;
+    SMat<S, 3> C;  // adjugate (A symmetric)
+    C(0, 0) = A(1, 1) * A(2, 2) - A(2, 1) * A(2, 1);
+    C(1, 0) = A(2, 1) * A(2, 0) - A(1, 0) * A(2, 2);
+    C(2, 0) = A(1, 0) * A(2, 1) - A(1, 1) * A(2, 0);
+    C(1, 1) = A(0, 0) * A(2, 2) - A(2, 0) * A(2, 0);
+    C(2, 1) = A(1, 0) * A(2, 0) - A(0, 0) * A(2, 1);
+    C(2, 2) = m2;
+    C(0, 1) = C(1, 0);
+    C(0, 2) = C(2, 0);
+    C(1, 2) = C(2, 1);
+    const S det = A(0, 0) * C(0, 0) + A(1, 0) * C(1, 0) + A(2, 0) * C(2, 0);
+    if (!(det > t * t * c) || !(det > t * (C(0, 0) + C(1, 1) + C(2, 2)))) return false;
+    x = (C * b) / det;
+  }
+  return true;
+}
+
 /// Solves H x = b for a symmetric H through sym_eig, replacing every eigenvalue by
 /// max(|kappa|, floor) (the absolute-value modification: a descent direction when used with
 /// b = -gradient; the exact Newton step when H is positive definite above the floor).
+/// Only the lower triangle of H is read. Where solve_if_well_conditioned_spd accepts H (positive
+/// definite, every eigenvalue above 64 sqrt(eps) lambda_max, i.e. above the floor) the
+/// modification is the identity and x = H^{-1} b is computed directly, without the
+/// eigen-decomposition.
 template <class S, int Dim>
 DIFFPHD_HOST_DEVICE inline SVec<S, Dim> abs_eig_solve(const SMat<S, Dim>& H,
                                                       const SVec<S, Dim>& b) {
   using M = SmallMath<S>;
+  {
+    SVec<S, Dim> x;
+    if (solve_if_well_conditioned_spd<S, Dim>(H, b, x)) return x;
+  }
   SVec<S, Dim> kappa;
   SMat<S, Dim> Q;
   sym_eig<S, Dim>(H, kappa, Q);

@@ -60,6 +60,16 @@ struct StretchProxTerm {
     return detail::stretch_prox_newton<S, Dim>(sigma_F, model, S(q.k), stats);
   }
 
+  /// p* = U diag(s*) V^T from a precomputed svd_rv(F) = (U, sigma, V) (the entry point
+  /// Energies<...> uses to share one SVD between terms). `F` is unused.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project_svd(
+      const Eigen::Matrix<S, Dim, Dim>& /*F*/, const Eigen::Matrix<S, Dim, Dim>& U,
+      const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+      const ElementParams& p, const ProxMeans& means, ProjectStats* stats = nullptr) {
+    return detail::compose<S, Dim>(U, stretches<S, Dim>(sigma, p, means, stats), V);
+  }
+
   /// p* = U diag(s*) V^T.
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project(const Eigen::Matrix<S, Dim, Dim>& F,
@@ -69,7 +79,7 @@ struct StretchProxTerm {
     Eigen::Matrix<S, Dim, Dim> U, V;
     Eigen::Matrix<S, Dim, 1> sigma;
     svd_rv<S, Dim>(F, U, sigma, V);
-    return detail::compose<S, Dim>(U, stretches<S, Dim>(sigma, p, means, stats), V);
+    return project_svd<S, Dim>(F, U, sigma, V, p, means, stats);
   }
 
   /// H_prox(s) = H_psi(s) + k I (eq. 23), Dim x Dim.
@@ -114,6 +124,15 @@ struct StretchProxTerm {
     return differential_filtered<S, Dim>(F, p, means, S(0));
   }
 
+  /// differential() from a precomputed svd_rv(F) = (U, sigma, V). `F` is unused.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential_svd(
+      const Eigen::Matrix<S, Dim, Dim>& F, const Eigen::Matrix<S, Dim, Dim>& U,
+      const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+      const ElementParams& p, const ProxMeans& means) {
+    return differential_filtered_svd<S, Dim>(F, U, sigma, V, p, means, S(0));
+  }
+
   /// dp*/dF through the filtered prox Hessian of eqs. (24)-(25):
   /// ds*/dsigma_F = k ((1 - tau) H + tau |H|)^{-1}. tau = 0 is differential(), 1/2 clamps the
   /// negative eigenvalues to 0, 1 takes their absolute values.
@@ -123,6 +142,15 @@ struct StretchProxTerm {
     Eigen::Matrix<S, Dim, Dim> U, V;
     Eigen::Matrix<S, Dim, 1> sigma;
     svd_rv<S, Dim>(F, U, sigma, V);
+    return differential_filtered_svd<S, Dim>(F, U, sigma, V, p, means, tau);
+  }
+
+  /// differential_filtered() from a precomputed svd_rv(F) = (U, sigma, V). `F` is unused.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential_filtered_svd(
+      const Eigen::Matrix<S, Dim, Dim>& /*F*/, const Eigen::Matrix<S, Dim, Dim>& U,
+      const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+      const ElementParams& p, const ProxMeans& means, S tau) {
     const Eigen::Matrix<S, Dim, 1> s = stretches<S, Dim>(sigma, p, means);
     const Eigen::Matrix<S, Dim, Dim> H = tau == S(0)
                                              ? prox_hessian<S, Dim>(s, p, means)

@@ -56,12 +56,13 @@ struct Volume {
       for (int i = 0; i < Dim; ++i) e(i) = exp(y(i));
       return e;
     };
-    auto objective = [&](const Vec& y) { return S(0.5) * (expv(y) - sigma).squaredNorm(); };
+    // f(x) = 1/2 ||exp(x) - sigma||^2; s = exp(x) is carried from the accepted line-search trial.
+    auto objective_at = [&](const Vec& s_of_y) { return S(0.5) * (s_of_y - sigma).squaredNorm(); };
     int it = 0;
     bool converged = false, failed = false;
     const int max_iter = 100;
+    Vec s = expv(x);
     for (; it < max_iter; ++it) {
-      const Vec s = expv(x);
       Vec g;
       Mat H = Mat::Zero();
       for (int i = 0; i < Dim; ++i) {
@@ -83,14 +84,16 @@ struct Volume {
         converged = true;
         break;
       }
-      const S f0 = objective(x);
+      const S f0 = objective_at(s);
       const S slope = gp.dot(d);
       S alpha = S(1);
       bool ok = false;
       for (int ls = 0; ls < 50; ++ls) {
         const Vec trial = x + alpha * d;
-        if (objective(trial) <= f0 + S(1e-4) * alpha * slope) {
+        const Vec s_trial = expv(trial);
+        if (objective_at(s_trial) <= f0 + S(1e-4) * alpha * slope) {
           x = trial;
+          s = s_trial;
           ok = true;
           break;
         }
@@ -134,28 +137,48 @@ struct Volume {
     return detail::small_inverse<S, Dim>(B) - W;
   }
 
+  /// p = U diag(s*) V^T from a precomputed svd_rv(F) = (U, sigma, V) (the entry point
+  /// Energies<...> uses to share one SVD between terms). `F`, `p`, `means` are unused; `stats`
+  /// counts the Newton solve.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project_svd(
+      const Eigen::Matrix<S, Dim, Dim>& /*F*/, const Eigen::Matrix<S, Dim, Dim>& U,
+      const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+      const ElementParams& /*p*/, const ProxMeans& /*means*/, ProjectStats* stats = nullptr) {
+    return detail::compose<S, Dim>(U, stretches<S, Dim>(sigma, stats), V);
+  }
+
   /// p = U diag(s*) V^T. `p`, `means` are unused; `stats` counts the Newton solve.
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project(const Eigen::Matrix<S, Dim, Dim>& F,
-                                                                const ElementParams& /*p*/,
-                                                                const ProxMeans& /*means*/,
+                                                                const ElementParams& p,
+                                                                const ProxMeans& means,
                                                                 ProjectStats* stats = nullptr) {
     Eigen::Matrix<S, Dim, Dim> U, V;
     Eigen::Matrix<S, Dim, 1> sigma;
     svd_rv<S, Dim>(F, U, sigma, V);
-    return detail::compose<S, Dim>(U, stretches<S, Dim>(sigma, stats), V);
+    return project_svd<S, Dim>(F, U, sigma, V, p, means, stats);
+  }
+
+  /// dp*/dF from a precomputed svd_rv(F) = (U, sigma, V), Dim^2 x Dim^2 (column-major vec).
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential_svd(
+      const Eigen::Matrix<S, Dim, Dim>& /*F*/, const Eigen::Matrix<S, Dim, Dim>& U,
+      const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+      const ElementParams& /*p*/, const ProxMeans& /*means*/) {
+    const Eigen::Matrix<S, Dim, 1> s = stretches<S, Dim>(sigma);
+    return detail::spectral_differential<S, Dim>(U, sigma, V, s,
+                                                 stretch_jacobian<S, Dim>(sigma, s));
   }
 
   /// dp*/dF, Dim^2 x Dim^2 (column-major vec).
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential(
-      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& /*p*/, const ProxMeans& /*means*/) {
+      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
     Eigen::Matrix<S, Dim, Dim> U, V;
     Eigen::Matrix<S, Dim, 1> sigma;
     svd_rv<S, Dim>(F, U, sigma, V);
-    const Eigen::Matrix<S, Dim, 1> s = stretches<S, Dim>(sigma);
-    return detail::spectral_differential<S, Dim>(U, sigma, V, s,
-                                                 stretch_jacobian<S, Dim>(sigma, s));
+    return differential_svd<S, Dim>(F, U, sigma, V, p, means);
   }
 
   /// weight / 2 ||F - p*||^2 (per unit rest volume).
