@@ -4,12 +4,14 @@
 #include <catch2/catch.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <string>
 #include <vector>
 
 #include <diffphd/energy/energy.hpp>
 #include <diffphd/io/generators.hpp>
+#include <diffphd/io/scene.hpp>
 #include <diffphd/io/tetgen.hpp>
 #include <diffphd/solver/solver.hpp>
 
@@ -202,10 +204,89 @@ TEST_CASE("Physics: heterogeneous (1000x) bar twisted, no inversion (coarse)", "
                                                    "bar corotated+neo-hookean-prox");
 }
 
-TEST_CASE("Physics: Armadillo in three height slabs (1000x) twisted, no inversion",
+TEST_CASE("Physics: shipped armadillo_twist scene at --contrast 1000 converges, no inversion",
           "[physics][.slow]") {
-  const SimplicialMesh<3> mesh =
-      io::read_tetgen<3>(std::string(DIFFPHD_DATA_DIR) + "/meshes/armadillo");
-  REQUIRE(mesh.num_vertices() == 7005);
-  twist_slabs<Energies<Corotated, Volume>>(mesh, 1, 1000.0, M_PI, 30, "armadillo corotated+volume");
+  // The scene users run (`diffphd run scenes/armadillo_twist.json --contrast 1000`), built the
+  // way examples/scene_run.hpp builds it: legs | torso (x1000) | upper body, E = 5e5 | 5e8 | 5e5
+  // Pa, feet clamped, top 10% twisted at pi/4 rad/s about the vertical axis through the centroid
+  // of the driven vertices, gravity, the scene's solver settings. 60 steps = 1 s = 0.785 rad,
+  // half the quarter turn. Why this set-up and this length:
+  // * The twist is slow against the soft parts' lowest torsional mode (c_s = sqrt(mu/rho) = 14
+  //   m/s over ~0.25 m: ~15 Hz), so the answer is close to quasi-static; the old test's twist
+  //   (pi rad/s started abruptly on E = 1e5 soft slabs, top 5% driven) inverted an element next
+  //   to the driven set at step 5 even converged to eps_rel = 1e-7 and with Anderson off:
+  //   a real (inertial) inversion of the model, not a solver failure (docs/solver.md).
+  // * With the scene's former eps_rel = 1e-4 the gate fired after ~9 iterations far from the
+  //   fixed point; the soft parts lagged and an element on the driven boundary inverted at step
+  //   47. Converged (eps_rel 1e-5, checked against 1e-6: min det F within 0.006) min det F is
+  //   0.35 at step 60.
+  // * Converged, the clamped feet do invert later (step ~82, 1.4 s): at 1000x the torso turns
+  //   rigidly with the head and the two legs take the whole twist by bending; the element with
+  //   three clamped vertices flattens. Corotated + Volume has no barrier, so that is the model's
+  //   answer, not a solver defect (docs/solver.md); hence 60 steps.
+  const io::SceneSpec scene =
+      io::load_scene(std::string(DIFFPHD_SOURCE_DIR) + "/scenes/armadillo_twist.json", 1000.0);
+  REQUIRE(scene.solver.energy == io::EnergyKind::CorotatedVolume);
+  const auto built = io::build_mesh_with_regions<3>(scene);
+  const SimplicialMesh<3>& mesh = built.mesh;
+  const MaterialField materials = io::build_materials<3>(scene, mesh, built.region);
+  REQUIRE(materials.stiffness_contrast() == Approx(1000.0));
+  SolverOptions so;
+  so.h = scene.h;
+  so.alpha = scene.solver.alpha;
+  so.beta0 = scene.solver.beta0;
+  so.anderson_window = scene.solver.anderson_window;
+  so.eps_rel = scene.solver.eps_rel;
+  so.eps_abs = scene.solver.eps_abs;
+  so.max_iterations = scene.solver.max_iterations;
+  REQUIRE(scene.solver.routing == io::Routing::StiffnessAware);
+  so.gravity.setZero();
+  if (scene.gravity.size() > 0) so.gravity = scene.gravity.head<3>();
+  Solver<3, Energies<Corotated, Volume>> sim(mesh, materials, so);
+  const auto mask = io::fixed_mask<3>(scene, mesh);
+  for (Index v = 0; v < mesh.num_vertices(); ++v) {
+    std::array<bool, 3> axes{mask(v, 0), mask(v, 1), mask(v, 2)};
+    if (axes[0] || axes[1] || axes[2]) sim.fix_vertices({v}, axes);
+  }
+  sim.set_state(mesh.rest_positions(), io::initial_velocities<3>(scene, mesh, materials));
+  REQUIRE(scene.drivers.size() == 1);
+  const io::DriverSpec& ds = scene.drivers[0];
+  REQUIRE(ds.kind == io::DriverSpec::Kind::Twist);
+  REQUIRE(ds.start == 0.0);
+  Driver<3> d;
+  d.kind = Driver<3>::Kind::Twist;
+  d.vertices = io::select_vertices(ds.vertices, mesh);
+  d.start = ds.start;
+  d.stop = ds.stop;
+  d.release_at_stop = ds.release_at_stop;
+  d.axis = Vec<3>::Unit(ds.axis);
+  d.angular_velocity = ds.angular_velocity;
+  d.center.setZero();
+  if (ds.center) {
+    d.center = ds.center->head<3>();
+  } else {
+    for (Index v : d.vertices) d.center += mesh.rest_positions().row(v).transpose();
+    d.center /= static_cast<double>(d.vertices.size());
+  }
+  sim.add_driver(d);
+  REQUIRE(sim.anderson_window() == 1);
+  int worst = 0, total = 0;
+  double min_det = 1e300;
+  const int steps = 60;
+  for (int i = 0; i < steps; ++i) {
+    const StepReport r = sim.step();
+    INFO("step " << i << ": " << r.message);
+    REQUIRE(r.converged);
+    worst = std::max(worst, r.iterations);
+    total += r.iterations;
+    const double J = sim.min_jacobian();
+    INFO("min det F " << J);
+    REQUIRE(J > 0);
+    min_det = std::min(min_det, J);
+  }
+  WARN("armadillo_twist x1000: " << steps << " steps (" << ds.angular_velocity * steps * scene.h
+                                 << " rad), iterations " << total << " (worst step " << worst
+                                 << "), min det F " << min_det);
+  // Converged answer: 0.35 (eps_rel 1e-5 and 1e-6 agree to 0.006); the loose gate gave < 0.
+  REQUIRE(min_det > 0.25);
 }

@@ -60,6 +60,29 @@ inline const char* to_string(WeightRouting r) {
   return "?";
 }
 
+/// \brief The first iterate q^0 of a step's local-global iteration (Dirichlet values of t + h
+/// imposed on it in both cases). The converged fixed point does not depend on it; the state
+/// at which the dual gate fires does (docs/solver.md, "Initial iterate").
+enum class InitialGuess {
+  /// q^0 = q_t + h v_t, the constant-velocity prediction (default). The force term of the
+  /// inertial target q~ (eq. 3) is left out: with a quasi-static h (say 1e4 s) h^2 g is 1e9 m.
+  Inertial,
+  /// q^0 = q_t, Algorithm 1 line 11 of the paper. With the relative gate of eq. (22) a stiff,
+  /// heterogeneous body then stops while its soft part still lags near q_t: every step removes
+  /// momentum, and driven vertices run away from their free neighbours.
+  Previous,
+};
+
+inline const char* to_string(InitialGuess g) {
+  switch (g) {
+    case InitialGuess::Inertial:
+      return "inertial";
+    case InitialGuess::Previous:
+      return "previous";
+  }
+  return "?";
+}
+
 /// \brief Options of the forward step. Changing h, alpha, beta0 or routing through
 /// Solver::set_options() refactors A once; the other fields take effect at the next step.
 struct SolverOptions {
@@ -81,7 +104,8 @@ struct SolverOptions {
   double eps_abs = 1e-8;         ///< dual gate, eq. (22)
   int max_iterations = 200;      ///< global solves per step at most
   WeightRouting routing = WeightRouting::StiffnessAware;
-  Vec<3> gravity = Vec<3>(0, -9.81, 0);  ///< m/s^2; the first Dim entries are used
+  InitialGuess initial_guess = InitialGuess::Inertial;  ///< first iterate of a step
+  Vec<3> gravity = Vec<3>(0, -9.81, 0);                 ///< m/s^2; the first Dim entries are used
 };
 
 /// \brief Outcome of one step.
@@ -355,7 +379,9 @@ class Solver {
     }
 
     // Iteration (Algorithm 1, lines 11-32).
-    Vector q = q_t, q_prev, b(n), b_prev, qhat, qnext;
+    Vector q = q_t;
+    if (options_.initial_guess == InitialGuess::Inertial) Backend::axpy(h, v_t, q);
+    Vector q_prev, b(n), b_prev, qhat, qnext;
     impose(q);
     mixer_ = AndersonMixer<Backend>(window_, options_.anderson_tikhonov, options_.anderson_reset);
     DualGate gate(options_.eps_rel, options_.eps_abs);
