@@ -18,12 +18,12 @@ import sys
 import tempfile
 
 
-def run(cli, scene, contrast, window, frames, eps_rel=None):
+def run(cli, scene, contrast, window, frames, gate=None):
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [cli, "run", scene, "--contrast", str(contrast), "--anderson", str(window),
                "--frames", str(frames), "--no-frames", "--json", "--out", tmp]
-        if eps_rel:
-            cmd += ["--eps-rel", str(eps_rel)]
+        if gate:
+            cmd += ["--gate", gate]
         env = dict(os.environ, OPENBLAS_NUM_THREADS=os.environ.get("OPENBLAS_NUM_THREADS", "1"))
         p = subprocess.run(cmd, capture_output=True, text=True, env=env)
         if p.returncode not in (0, 3):
@@ -50,6 +50,7 @@ def main():
     ap.add_argument("--cantilever-frames", type=int, default=60)
     ap.add_argument("--armadillo-frames", type=int, default=10)
     ap.add_argument("--quick", action="store_true", help="cantilever only, 10 frames")
+    ap.add_argument("--gate", choices=["paper", "step-relative"], help="dual-gate scale")
     a = ap.parse_args()
     contrasts = [float(c) for c in a.contrasts.split(",")]
     windows = [int(m) for m in a.windows.split(",")]
@@ -60,7 +61,7 @@ def main():
     for scene, frames in scenes:
         for c in contrasts:
             for m in windows:
-                j = run(a.cli, scene, c, m, frames)
+                j = run(a.cli, scene, c, m, frames, a.gate)
                 results.append(j)
                 print(f"{j['name']:18s} contrast {c:>7g}x m={m}: {j['mean_iterations']:7.1f} it/step "
                       f"(max {j['max_iterations']}), {j['median_ms_per_step']:8.2f} ms/step, "
@@ -69,7 +70,7 @@ def main():
     keys = ["name", "contrast", "window", "anderson_window", "steps", "converged_steps",
             "mean_iterations", "median_iterations", "max_iterations", "aa_resets",
             "median_ms_per_step", "seconds_per_step", "min_jacobian", "vertices", "elements",
-            "eps_rel", "h"]
+            "eps_rel", "gate", "h"]
     os.makedirs(os.path.dirname(a.out) or ".", exist_ok=True)
     with open(a.out + ".csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")

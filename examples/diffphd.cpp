@@ -98,7 +98,7 @@ int main(int argc, char** argv) {
   std::string scene_path, out_dir;
   std::optional<double> contrast, eps_rel;
   std::optional<int> frames, anderson, max_iterations;
-  std::string routing;
+  std::string routing, gate;
   bool no_frames = false;
   auto* run = app.add_subcommand("run", "Simulate a scene file (frames, per-step stats, summary)");
   run->add_option("SCENE", scene_path, "Scene file (JSON, see docs/scenes.md)")->required();
@@ -114,6 +114,10 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   run->add_option("--routing", routing, "stiffness-aware | per-element-prox | uniform")
       ->check(CLI::IsMember({"stiffness-aware", "per-element-prox", "uniform"}));
+  run->add_option("--gate", gate,
+                  "Dual-gate scale: paper (eq. 22 as printed) | step-relative (translation "
+                  "invariant)")
+      ->check(CLI::IsMember({"paper", "step-relative"}));
   run->add_flag("--no-frames", no_frames, "Write stats and summary only");
   run->add_flag("--json", json_out, "Print the summary as one JSON object on stdout");
 
@@ -131,6 +135,8 @@ int main(int argc, char** argv) {
       if (routing == "stiffness-aware") opt.routing = diffphd::io::Routing::StiffnessAware;
       if (routing == "per-element-prox") opt.routing = diffphd::io::Routing::PerElementProx;
       if (routing == "uniform") opt.routing = diffphd::io::Routing::Uniform;
+      if (gate == "paper") opt.gate = diffphd::GateScale::Paper;
+      if (gate == "step-relative") opt.gate = diffphd::GateScale::StepRelative;
       return cmd_run(scene_path, contrast, opt, json_out);
     }
   } catch (const diffphd::InputError& e) {

@@ -29,8 +29,9 @@ struct RunOptions {
   std::optional<double> eps_rel;
   std::optional<int> max_iterations;
   std::optional<io::Routing> routing;
-  bool write_frames = true;  ///< VTU/PVD and OBJ per frame (stats are always written)
-  bool progress = true;      ///< progress bar on a terminal
+  std::optional<GateScale> gate;  ///< --gate
+  bool write_frames = true;       ///< VTU/PVD and OBJ per frame (stats are always written)
+  bool progress = true;           ///< progress bar on a terminal
 };
 
 /// Runs the scene; returns the summary. Throws InputError on bad scenes.
@@ -77,6 +78,7 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   so.max_iterations = opt.max_iterations.value_or(scene.solver.max_iterations);
   const io::Routing routing = opt.routing.value_or(scene.solver.routing);
   so.routing = to_weight_routing(routing);
+  if (opt.gate) so.gate_scale = *opt.gate;
   so.gravity.setZero();
   if (scene.gravity.size() > 0) so.gravity.head<Dim>() = scene.gravity.head<Dim>();
 
@@ -213,6 +215,7 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   j["contrast"] = materials.stiffness_contrast();
   j["anderson_window"] = sim.anderson_window();
   j["eps_rel"] = so.eps_rel;
+  j["gate"] = to_string(so.gate_scale);
   j["h"] = so.h;
   j["frames"] = frames;
   j["substeps"] = substeps;
