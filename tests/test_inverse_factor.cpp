@@ -25,12 +25,7 @@ using diffphd::test::two_materials;
 namespace {
 template <int Dim>
 SparseMatrix pd_matrix(int n, double contrast) {
-  const auto mesh = grid_mesh<Dim>(n);
-  PDMatrixParams p;
-  p.h = 1e-2;
-  p.alpha = 0.2;
-  p.beta0 = 1e-3;
-  return assemble_pd_matrix(mesh, two_materials(mesh, contrast), p);
+  return test::grid_pd_matrix<Dim>(n, contrast, 0.2);
 }
 }  // namespace
 

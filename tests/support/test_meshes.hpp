@@ -11,6 +11,7 @@
 
 #include <diffphd/core/material.hpp>
 #include <diffphd/core/mesh.hpp>
+#include <diffphd/linalg/pd_matrix.hpp>
 
 namespace diffphd::test {
 
@@ -82,6 +83,18 @@ MaterialField two_materials(const SimplicialMesh<Dim>& mesh, double contrast, do
   const double xmax = mesh.bounding_box().max()[0];
   f.assign_slab(mesh, 0, 0.5 * xmax, 2.0 * xmax, stiff);
   return f;
+}
+
+/// A_s (eq. 31) of grid_mesh<Dim>(n) with two_materials(contrast), h = 1e-2, beta0 = 1e-3 and
+/// mass damping alpha.
+template <int Dim>
+SparseMatrix grid_pd_matrix(int n, double contrast, double alpha = 0.0) {
+  const auto mesh = grid_mesh<Dim>(n);
+  PDMatrixParams p;
+  p.h = 1e-2;
+  p.alpha = alpha;
+  p.beta0 = 1e-3;
+  return assemble_pd_matrix(mesh, two_materials(mesh, contrast), p);
 }
 
 }  // namespace diffphd::test

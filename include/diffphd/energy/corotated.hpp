@@ -15,7 +15,7 @@ namespace diffphd {
 /// (detail::spectral_differential with s = 1, ds/dsigma = 0). sigma_i + sigma_j vanishes only
 /// where R is undefined (inverted F with sigma_i = -sigma_j); there the denominator is floored
 /// at sqrt(eps) max(1, |sigma|) and the differential is large but finite.
-struct Corotated {
+struct Corotated : detail::SvdTerm<Corotated> {
   static constexpr const char* name = "corotated";
   /// w = 2 mu.
   DIFFPHD_HOST_DEVICE static double weight(double mu, double /*lambda*/) { return 2.0 * mu; }
@@ -34,18 +34,6 @@ struct Corotated {
     return U * V.transpose();
   }
 
-  /// p = R = U V^T. `p`, `means`, `stats` are unused.
-  template <class S, int Dim>
-  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project(const Eigen::Matrix<S, Dim, Dim>& F,
-                                                                const ElementParams& p,
-                                                                const ProxMeans& means,
-                                                                ProjectStats* stats = nullptr) {
-    Eigen::Matrix<S, Dim, Dim> U, V;
-    Eigen::Matrix<S, Dim, 1> sigma;
-    svd_rv<S, Dim>(F, U, sigma, V);
-    return project_svd<S, Dim>(F, U, sigma, V, p, means, stats);
-  }
-
   /// dR/dF from a precomputed svd_rv(F) = (U, sigma, V), Dim^2 x Dim^2 (column-major vec).
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential_svd(
@@ -54,23 +42,6 @@ struct Corotated {
       const ElementParams& /*p*/, const ProxMeans& /*means*/) {
     return detail::spectral_differential<S, Dim>(U, sigma, V, Eigen::Matrix<S, Dim, 1>::Ones(),
                                                  Eigen::Matrix<S, Dim, Dim>::Zero());
-  }
-
-  /// dR/dF, Dim^2 x Dim^2 (column-major vec).
-  template <class S, int Dim>
-  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential(
-      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
-    Eigen::Matrix<S, Dim, Dim> U, V;
-    Eigen::Matrix<S, Dim, 1> sigma;
-    svd_rv<S, Dim>(F, U, sigma, V);
-    return differential_svd<S, Dim>(F, U, sigma, V, p, means);
-  }
-
-  /// weight / 2 ||F - R||^2 (per unit rest volume).
-  template <class S, int Dim>
-  static S surrogate_energy(const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p,
-                            const ProxMeans& means) {
-    return S(0.5 * element_weight(p)) * (F - project<S, Dim>(F, p, means)).squaredNorm();
   }
 };
 

@@ -367,5 +367,41 @@ DIFFPHD_HOST_DEVICE inline SVec<S, Dim> fibre_direction(const ElementParams& p) 
   return m;
 }
 
+/// \brief CRTP base of the terms that project through the rotation-variant SVD: project(),
+/// differential() and surrogate_energy() written once over Derived::project_svd,
+/// Derived::differential_svd and Derived::element_weight (composites call the _svd entry
+/// points directly with one shared SVD, Energies::weighted_projection).
+template <class Derived>
+struct SvdTerm {
+  /// p* = proj(F): svd_rv(F), then Derived::project_svd.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project(const Eigen::Matrix<S, Dim, Dim>& F,
+                                                                const ElementParams& p,
+                                                                const ProxMeans& means,
+                                                                ProjectStats* stats = nullptr) {
+    Eigen::Matrix<S, Dim, Dim> U, V;
+    Eigen::Matrix<S, Dim, 1> sigma;
+    svd_rv<S, Dim>(F, U, sigma, V);
+    return Derived::template project_svd<S, Dim>(F, U, sigma, V, p, means, stats);
+  }
+
+  /// dp*/dF, Dim^2 x Dim^2 (column-major vec): svd_rv(F), then Derived::differential_svd.
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential(
+      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
+    Eigen::Matrix<S, Dim, Dim> U, V;
+    Eigen::Matrix<S, Dim, 1> sigma;
+    svd_rv<S, Dim>(F, U, sigma, V);
+    return Derived::template differential_svd<S, Dim>(F, U, sigma, V, p, means);
+  }
+
+  /// weight / 2 ||F - p*||^2 (per unit rest volume): the PD surrogate, not the density itself.
+  template <class S, int Dim>
+  static S surrogate_energy(const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p,
+                            const ProxMeans& means) {
+    return S(0.5 * Derived::element_weight(p)) * (F - project<S, Dim>(F, p, means)).squaredNorm();
+  }
+};
+
 }  // namespace detail
 }  // namespace diffphd

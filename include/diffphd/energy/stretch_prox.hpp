@@ -29,7 +29,7 @@ namespace diffphd {
 /// \tparam Routing MeshMeans (mu_bar, lambda_bar, k_bar) or PerElement (mu_e, lambda_e,
 ///   k_e = weight(mu_e, lambda_e)).
 template <class Policy, ProxRouting Routing>
-struct StretchProxTerm {
+struct StretchProxTerm : detail::SvdTerm<StretchProxTerm<Policy, Routing>> {
   static constexpr ProxRouting routing = Routing;
   DIFFPHD_HOST_DEVICE static double weight(double mu, double lambda) {
     return Policy::weight(mu, lambda);
@@ -70,18 +70,6 @@ struct StretchProxTerm {
     return detail::compose<S, Dim>(U, stretches<S, Dim>(sigma, p, means, stats), V);
   }
 
-  /// p* = U diag(s*) V^T.
-  template <class S, int Dim>
-  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project(const Eigen::Matrix<S, Dim, Dim>& F,
-                                                                const ElementParams& p,
-                                                                const ProxMeans& means,
-                                                                ProjectStats* stats = nullptr) {
-    Eigen::Matrix<S, Dim, Dim> U, V;
-    Eigen::Matrix<S, Dim, 1> sigma;
-    svd_rv<S, Dim>(F, U, sigma, V);
-    return project_svd<S, Dim>(F, U, sigma, V, p, means, stats);
-  }
-
   /// H_prox(s) = H_psi(s) + k I (eq. 23), Dim x Dim.
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> prox_hessian(
@@ -115,13 +103,6 @@ struct StretchProxTerm {
     for (int i = 0; i < Dim; ++i)
       filtered(i) = (S(1) - tau) * kappa(i) + tau * detail::SmallMath<S>::abs(kappa(i));
     return Q * filtered.asDiagonal() * Q.transpose();
-  }
-
-  /// dp*/dF, Dim^2 x Dim^2 (column-major vec): ds*/dsigma_F = k (H_psi(s*) + k I)^{-1}.
-  template <class S, int Dim>
-  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential(
-      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
-    return differential_filtered<S, Dim>(F, p, means, S(0));
   }
 
   /// differential() from a precomputed svd_rv(F) = (U, sigma, V). `F` is unused.
@@ -158,13 +139,6 @@ struct StretchProxTerm {
     const Eigen::Matrix<S, Dim, Dim> J =
         S(prox_params(p, means).k) * detail::small_inverse<S, Dim>(H);
     return detail::spectral_differential<S, Dim>(U, sigma, V, s, J);
-  }
-
-  /// weight / 2 ||F - p*||^2 (per unit rest volume): the PD surrogate, not psi itself.
-  template <class S, int Dim>
-  static S surrogate_energy(const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p,
-                            const ProxMeans& means) {
-    return S(0.5 * element_weight(p)) * (F - project<S, Dim>(F, p, means)).squaredNorm();
   }
 };
 

@@ -21,7 +21,7 @@ namespace diffphd {
 /// D = diag(1 + nu / s_i^2), w = 1/s, J = ds/dsigma = Z (Z^T D Z)^{-1} Z^T for Z an orthonormal
 /// basis of w^perp, computed as (P D P + w_hat w_hat^T)^{-1} - w_hat w_hat^T with
 /// P = I - w_hat w_hat^T; then detail::spectral_differential adds the rotation terms.
-struct Volume {
+struct Volume : detail::SvdTerm<Volume> {
   static constexpr const char* name = "volume";
   /// w = lambda.
   DIFFPHD_HOST_DEVICE static double weight(double /*mu*/, double lambda) { return lambda; }
@@ -148,18 +148,6 @@ struct Volume {
     return detail::compose<S, Dim>(U, stretches<S, Dim>(sigma, stats), V);
   }
 
-  /// p = U diag(s*) V^T. `p`, `means` are unused; `stats` counts the Newton solve.
-  template <class S, int Dim>
-  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> project(const Eigen::Matrix<S, Dim, Dim>& F,
-                                                                const ElementParams& p,
-                                                                const ProxMeans& means,
-                                                                ProjectStats* stats = nullptr) {
-    Eigen::Matrix<S, Dim, Dim> U, V;
-    Eigen::Matrix<S, Dim, 1> sigma;
-    svd_rv<S, Dim>(F, U, sigma, V);
-    return project_svd<S, Dim>(F, U, sigma, V, p, means, stats);
-  }
-
   /// dp*/dF from a precomputed svd_rv(F) = (U, sigma, V), Dim^2 x Dim^2 (column-major vec).
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential_svd(
@@ -169,23 +157,6 @@ struct Volume {
     const Eigen::Matrix<S, Dim, 1> s = stretches<S, Dim>(sigma);
     return detail::spectral_differential<S, Dim>(U, sigma, V, s,
                                                  stretch_jacobian<S, Dim>(sigma, s));
-  }
-
-  /// dp*/dF, Dim^2 x Dim^2 (column-major vec).
-  template <class S, int Dim>
-  DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential(
-      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
-    Eigen::Matrix<S, Dim, Dim> U, V;
-    Eigen::Matrix<S, Dim, 1> sigma;
-    svd_rv<S, Dim>(F, U, sigma, V);
-    return differential_svd<S, Dim>(F, U, sigma, V, p, means);
-  }
-
-  /// weight / 2 ||F - p*||^2 (per unit rest volume).
-  template <class S, int Dim>
-  static S surrogate_energy(const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p,
-                            const ProxMeans& means) {
-    return S(0.5 * element_weight(p)) * (F - project<S, Dim>(F, p, means)).squaredNorm();
   }
 };
 
