@@ -15,6 +15,7 @@
 #include <diffphd/energy/energy.hpp>
 #include <diffphd/io/io.hpp>
 #include <diffphd/io/scene.hpp>
+#include <diffphd/solver/scene_simulation.hpp>
 #include <diffphd/solver/solver.hpp>
 
 #include "progress.hpp"
@@ -43,17 +44,6 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt);
 
 // ---- implementation -------------------------------------------------------------------------
 
-inline WeightRouting to_weight_routing(io::Routing r) {
-  switch (r) {
-    case io::Routing::PerElementProx:
-      return WeightRouting::PerElementProx;
-    case io::Routing::Uniform:
-      return WeightRouting::Uniform;
-    default:
-      return WeightRouting::StiffnessAware;
-  }
-}
-
 inline std::string frame_file(const std::string& prefix, int frame, const std::string& ext) {
   char digits[16];
   std::snprintf(digits, sizeof digits, "%06d", frame);
@@ -64,81 +54,18 @@ template <int Dim, class Energy>
 nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   namespace fs = std::filesystem;
   using json = nlohmann::json;
-  const auto built = io::build_mesh_with_regions<Dim>(scene);
-  const SimplicialMesh<Dim>& mesh = built.mesh;
-  const MaterialField materials = io::build_materials<Dim>(scene, mesh, built.region);
-
-  SolverOptions so;
-  so.h = scene.h;
-  so.alpha = scene.solver.alpha;
-  so.beta0 = scene.solver.beta0;
-  so.anderson_window = opt.anderson.value_or(scene.solver.anderson_window);
-  so.eps_rel = opt.eps_rel.value_or(scene.solver.eps_rel);
-  so.eps_abs = scene.solver.eps_abs;
-  so.max_iterations = opt.max_iterations.value_or(scene.solver.max_iterations);
+  SceneOverrides over;
+  over.anderson = opt.anderson;
+  over.eps_rel = opt.eps_rel;
+  over.max_iterations = opt.max_iterations;
+  over.routing = opt.routing;
+  over.gate = opt.gate;
+  SceneSimulation<Dim, Energy> run(scene, over);
+  const SimplicialMesh<Dim>& mesh = run.mesh();
+  const MaterialField& materials = run.materials();
+  const SolverOptions& so = run.options();
   const io::Routing routing = opt.routing.value_or(scene.solver.routing);
-  so.routing = to_weight_routing(routing);
-  if (opt.gate) so.gate_scale = *opt.gate;
-  so.gravity.setZero();
-  if (scene.gravity.size() > 0) so.gravity.head<Dim>() = scene.gravity.head<Dim>();
-
-  Solver<Dim, Energy> sim(mesh, materials, so);
-  const auto mask = io::fixed_mask<Dim>(scene, mesh);
-  for (Index v = 0; v < mesh.num_vertices(); ++v) {
-    std::array<bool, Dim> axes;
-    bool any = false;
-    for (int k = 0; k < Dim; ++k) any |= (axes[k] = mask(v, k));
-    if (any) sim.fix_vertices({v}, axes);
-  }
-  sim.set_state(mesh.rest_positions(), io::initial_velocities<Dim>(scene, mesh, materials));
-
-  // Drivers start at their `start` time from the positions reached then (scene semantics: free
-  // before start), so each is handed to the solver when the clock reaches it.
-  std::vector<bool> driver_added(scene.drivers.size(), false);
-  auto add_due_drivers = [&](double t) {
-    for (size_t i = 0; i < scene.drivers.size(); ++i) {
-      const io::DriverSpec& d = scene.drivers[i];
-      if (driver_added[i] || t + 1e-12 * scene.h < d.start) continue;
-      Driver<Dim> drv;
-      drv.vertices = io::select_vertices(d.vertices, mesh);
-      drv.start = d.start;
-      drv.stop = d.stop;
-      drv.release_at_stop = d.release_at_stop;
-      if (d.kind == io::DriverSpec::Kind::Twist) {
-        drv.kind = Driver<Dim>::Kind::Twist;
-        drv.axis = Vec<3>::Unit(Dim == 3 ? d.axis : 2);
-        drv.angular_velocity = d.angular_velocity;
-        Vec<Dim> c = Vec<Dim>::Zero();
-        if (d.center) {
-          c = d.center->head<Dim>();
-        } else {
-          for (Index v : drv.vertices) c += sim.positions().row(v).transpose();
-          c /= static_cast<double>(drv.vertices.size());
-        }
-        drv.center.setZero();
-        drv.center.template head<Dim>() = c;
-      } else {
-        drv.kind = Driver<Dim>::Kind::Pull;
-        drv.velocity.setZero();
-        drv.velocity.template head<Dim>() = d.velocity.template head<Dim>();
-      }
-      sim.add_driver(std::move(drv));
-      driver_added[i] = true;
-    }
-  };
-  std::vector<std::vector<Index>> force_vertices;
-  for (const io::ForceSpec& f : scene.forces)
-    force_vertices.push_back(io::select_vertices(f.vertices, mesh));
-  auto apply_forces = [&](double t) {
-    VertexMatrix<Dim> F = VertexMatrix<Dim>::Zero(mesh.num_vertices(), Dim);
-    for (size_t i = 0; i < scene.forces.size(); ++i) {
-      const io::ForceSpec& f = scene.forces[i];
-      if (t < f.start || t >= f.stop) continue;
-      const VectorX fv = io::per_vertex_force(f, static_cast<Index>(force_vertices[i].size()));
-      for (Index v : force_vertices[i]) F.row(v) += fv.head<Dim>().transpose();
-    }
-    sim.set_external_forces(F);
-  };
+  Solver<Dim, Energy>& sim = run.solver();
 
   const int frames = opt.frames.value_or(scene.output.frames);
   const int substeps = scene.output.substeps;
@@ -175,9 +102,7 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   for (int f = 1; f <= frames && failure.empty(); ++f) {
     bool frame_ok = true;
     for (int s = 0; s < substeps; ++s) {
-      add_due_drivers(sim.time());
-      apply_forces(sim.time());
-      const StepReport r = sim.step();
+      const StepReport r = run.step();
       ++steps;
       iter_sum += r.iterations;
       iter_max = std::max(iter_max, r.iterations);

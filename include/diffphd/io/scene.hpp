@@ -71,6 +71,14 @@ enum class Routing {
   Uniform          ///< "uniform": one weight for all elements (plain PD, the baseline)
 };
 
+/// \brief What the dual gate's tolerances are relative to ("gate" in "solver").
+enum class Gate {
+  Paper,        ///< "paper": eq. (22) as printed (relative to ||q^k|| and ||b(q^k)||)
+  StepRelative  ///< "step-relative": relative to this step's motion and the elastic part of b
+};
+
+inline const char* to_string(Gate g) { return g == Gate::Paper ? "paper" : "step-relative"; }
+
 /// The scene-file name of an energy ("corotated+volume", ...).
 inline const char* to_string(EnergyKind e) {
   switch (e) {
@@ -220,14 +228,18 @@ struct SolverSpec {
   int anderson_window = -1;  ///< -1: automatic (m = 1 heterogeneous, 5 homogeneous); 0: off
   double eps_rel = 1e-4;     ///< dual-gate relative tolerance, eq. (22), > 0
   double eps_abs = 1e-8;     ///< dual-gate absolute tolerance, eq. (22), >= 0
+  Gate gate = Gate::Paper;   ///< what eps_rel is relative to
   int max_iterations = 200;  ///< PD iterations per step, >= 1
   double alpha = 0;          ///< mass damping alpha, 1/s, >= 0 (eq. 31)
   double beta0 = 0;          ///< stiffness damping beta_0, s, >= 0 (Sec. 4.5)
 };
 
-/// \brief The contrast hook: the named regions' Young's moduli are multiplied by `factor`.
+/// \brief The contrast hook: the Young's modulus of regions[i] is multiplied by
+/// factor^exponents[i] (exponents default to 1; 0.5 puts a region halfway between 1x and the
+/// full contrast on a log scale, as the paper's Armadillo slabs).
 struct ContrastSpec {
   std::vector<std::string> regions;  ///< region names; "default" names the default material
+  std::vector<double> exponents;     ///< one per region, finite (1 when the file gives none)
   double default_factor = 1;         ///< the file's "default", > 0
   double factor = 1;                 ///< applied: the command line's --contrast, else default
 };
@@ -778,7 +790,7 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
   // Contrast hook.
   if (root.contains("contrast")) {
     const json& c = root.at("contrast");
-    p.expect_object(c, "contrast", {"regions", "default"});
+    p.expect_object(c, "contrast", {"regions", "exponents", "default"});
     const json& list = p.array(p.required(c, "contrast", "regions"), "contrast.regions");
     if (list.empty()) p.fail("contrast.regions", "the list is empty");
     for (size_t i = 0; i < list.size(); ++i) {
@@ -790,6 +802,21 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
                "no region is named \"" + n + "\" (known: " + known + ")");
       }
       s.contrast.regions.push_back(n);
+    }
+    s.contrast.exponents.assign(list.size(), 1.0);
+    if (c.contains("exponents")) {
+      const json& ex = p.array(c.at("exponents"), "contrast.exponents");
+      if (ex.size() != list.size())
+        p.fail("contrast.exponents", "has " + std::to_string(ex.size()) +
+                                         " entries, contrast.regions has " +
+                                         std::to_string(list.size()));
+      for (size_t i = 0; i < ex.size(); ++i) {
+        const std::string path = item("contrast.exponents", i);
+        if (!ex[i].is_number()) p.fail(path, "must be a number");
+        const double e = ex[i].get<double>();
+        if (!std::isfinite(e)) p.fail(path, "must be finite");
+        s.contrast.exponents[i] = e;
+      }
     }
     s.contrast.default_factor = p.number(c, "contrast", "default", 1.0);
     p.positive(s.contrast.default_factor, "contrast.default");
@@ -926,8 +953,8 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
     const json& j = root.at("solver");
     const std::string path = "solver";
     p.expect_object(j, path,
-                    {"energy", "routing", "anderson_window", "eps_rel", "eps_abs", "max_iterations",
-                     "damping"});
+                    {"energy", "routing", "anderson_window", "eps_rel", "eps_abs", "gate",
+                     "max_iterations", "damping"});
     SolverSpec& sv = s.solver;
     if (j.contains("energy")) {
       const std::string e = p.string(j.at("energy"), "solver.energy");
@@ -949,6 +976,15 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
         p.fail("solver.routing", "unknown routing \"" + r +
                                      "\" (expected \"stiffness-aware\", \"per-element-prox\" or "
                                      "\"uniform\")");
+    }
+    if (j.contains("gate")) {
+      const std::string g = p.string(j.at("gate"), "solver.gate");
+      if (g == "paper")
+        sv.gate = Gate::Paper;
+      else if (g == "step-relative")
+        sv.gate = Gate::StepRelative;
+      else
+        p.fail("solver.gate", "unknown gate \"" + g + "\" (expected \"paper\" or \"step-relative\")");
     }
     const long m = p.integer(j, path, "anderson_window", -1L);
     if (m < -1 || m > 64)
@@ -1265,8 +1301,11 @@ MaterialField build_materials(const SceneSpec& scene, const SimplicialMesh<Dim>&
                               const std::vector<int>& file_regions = {}) {
   scene_detail::check_dimension<Dim>(scene, "build_materials");
   auto scaled = [&](Material m, const std::string& name) {
-    for (const auto& n : scene.contrast.regions)
-      if (n == name) m.youngs_modulus *= scene.contrast.factor;
+    for (size_t i = 0; i < scene.contrast.regions.size(); ++i)
+      if (scene.contrast.regions[i] == name)
+        m.youngs_modulus *= std::pow(scene.contrast.factor, i < scene.contrast.exponents.size()
+                                                                ? scene.contrast.exponents[i]
+                                                                : 1.0);
     return m;
   };
   MaterialField field;

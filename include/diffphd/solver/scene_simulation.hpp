@@ -1,0 +1,198 @@
+#pragma once
+/// \file scene_simulation.hpp
+/// \brief SceneSimulation: a scene file (io::SceneSpec) set up on the forward solver: mesh,
+/// materials, Dirichlet set, initial velocities, drivers (each handed over when the clock
+/// reaches its start) and per-step external forces. `diffphd run` and the scene tests both step
+/// through this one class, so a test of a shipped scene tests what users run.
+///
+/// \code
+/// auto scene = diffphd::io::load_scene("scenes/armadillo_twist.json", /*contrast=*/1000.0);
+/// diffphd::SceneSimulation<3, diffphd::Energies<diffphd::Corotated, diffphd::Volume>> sim(scene);
+/// for (int s = 0; s < 60; ++s) {
+///   diffphd::StepReport r = sim.step();
+///   if (!r.converged) ...
+/// }
+/// \endcode
+#include <array>
+#include <optional>
+#include <string>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "../energy/energy.hpp"
+#include "../io/scene.hpp"
+#include "solver.hpp"
+
+namespace diffphd {
+
+/// \brief The scene energy name of a shipped energy type, or nullopt for other (user) types.
+template <class Energy>
+constexpr std::optional<io::EnergyKind> scene_energy_kind() {
+  if constexpr (std::is_same_v<Energy, Energies<Corotated, Volume>>)
+    return io::EnergyKind::CorotatedVolume;
+  else if constexpr (std::is_same_v<Energy, Corotated>)
+    return io::EnergyKind::Corotated;
+  else if constexpr (std::is_same_v<Energy, NeoHookeanProx>)
+    return io::EnergyKind::NeoHookean;
+  else if constexpr (std::is_same_v<Energy, Energies<NeoHookeanProx, LogVolume>>)
+    return io::EnergyKind::NeoHookeanLogVolume;
+  else
+    return std::nullopt;
+}
+
+inline WeightRouting to_weight_routing(io::Routing r) {
+  switch (r) {
+    case io::Routing::PerElementProx:
+      return WeightRouting::PerElementProx;
+    case io::Routing::Uniform:
+      return WeightRouting::Uniform;
+    default:
+      return WeightRouting::StiffnessAware;
+  }
+}
+
+/// \brief Command-line style overrides of a scene's solver settings; unset = the scene's.
+struct SceneOverrides {
+  std::optional<int> anderson;  ///< Anderson window (-1 auto, 0 plain PD)
+  std::optional<double> eps_rel;
+  std::optional<int> max_iterations;
+  std::optional<io::Routing> routing;
+  std::optional<GateScale> gate;
+};
+
+/// \brief The solver options a scene asks for, with `over` applied.
+inline SolverOptions scene_solver_options(const io::SceneSpec& scene, int dim,
+                                          const SceneOverrides& over = {}) {
+  SolverOptions so;
+  so.h = scene.h;
+  so.alpha = scene.solver.alpha;
+  so.beta0 = scene.solver.beta0;
+  so.anderson_window = over.anderson.value_or(scene.solver.anderson_window);
+  so.eps_rel = over.eps_rel.value_or(scene.solver.eps_rel);
+  so.eps_abs = scene.solver.eps_abs;
+  so.max_iterations = over.max_iterations.value_or(scene.solver.max_iterations);
+  so.routing = to_weight_routing(over.routing.value_or(scene.solver.routing));
+  so.gate_scale = over.gate.value_or(scene.solver.gate == io::Gate::StepRelative
+                                         ? GateScale::StepRelative
+                                         : GateScale::Paper);
+  so.gravity.setZero();
+  for (int k = 0; k < dim && k < scene.gravity.size(); ++k) so.gravity[k] = scene.gravity[k];
+  return so;
+}
+
+/// \brief A scene on the forward solver. Owns the mesh, the materials and the Solver.
+template <int Dim, class Energy>
+class SceneSimulation {
+ public:
+  /// Builds everything the scene describes. Throws InputError (naming the scene file) on a bad
+  /// scene, a scene of the other dimension, or a scene whose "solver.energy" names a shipped
+  /// energy other than `Energy`.
+  explicit SceneSimulation(const io::SceneSpec& scene, const SceneOverrides& over = {})
+      : scene_(checked(scene)),
+        built_(io::build_mesh_with_regions<Dim>(scene_)),
+        materials_(io::build_materials<Dim>(scene_, built_.mesh, built_.region)),
+        options_(scene_solver_options(scene_, Dim, over)),
+        sim_(built_.mesh, materials_, options_),
+        driver_added_(scene_.drivers.size(), false) {
+    const auto mask = io::fixed_mask<Dim>(scene_, mesh());
+    for (Index v = 0; v < mesh().num_vertices(); ++v) {
+      std::array<bool, Dim> axes;
+      bool any = false;
+      for (int k = 0; k < Dim; ++k) any |= (axes[k] = mask(v, k));
+      if (any) sim_.fix_vertices({v}, axes);
+    }
+    sim_.set_state(mesh().rest_positions(), io::initial_velocities<Dim>(scene_, mesh(), materials_));
+    for (const io::ForceSpec& f : scene_.forces)
+      force_vertices_.push_back(io::select_vertices(f.vertices, mesh()));
+    // Drivers' vertex sets are checked now, not when they start.
+    for (const io::DriverSpec& d : scene_.drivers) io::select_vertices(d.vertices, mesh());
+  }
+
+  /// One solver step at the current time: drivers due by now are added (from the positions
+  /// reached), the scene's forces active now are applied, then Solver::step().
+  StepReport step() {
+    add_due_drivers(sim_.time());
+    apply_forces(sim_.time());
+    return sim_.step();
+  }
+
+  const io::SceneSpec& scene() const { return scene_; }
+  const SimplicialMesh<Dim>& mesh() const { return built_.mesh; }
+  /// Per-element region ids of the mesh file / generator (0 where it has none).
+  const std::vector<int>& mesh_regions() const { return built_.region; }
+  const MaterialField& materials() const { return materials_; }
+  const SolverOptions& options() const { return options_; }
+  Solver<Dim, Energy>& solver() { return sim_; }
+  const Solver<Dim, Energy>& solver() const { return sim_; }
+
+ private:
+  static const io::SceneSpec& checked(const io::SceneSpec& scene) {
+    if (io::scene_dimension(scene) != Dim)
+      throw InputError(scene.file + ": the scene is " + std::to_string(io::scene_dimension(scene)) +
+                       "D, the simulation " + std::to_string(Dim) + "D");
+    constexpr auto kind = scene_energy_kind<Energy>();
+    if constexpr (kind.has_value()) {
+      if (scene.solver.energy != *kind)
+        throw InputError(scene.file + ": solver.energy is \"" +
+                         io::to_string(scene.solver.energy) +
+                         "\" but the simulation was built for \"" + io::to_string(*kind) + "\"");
+    }
+    return scene;
+  }
+
+  void add_due_drivers(double t) {
+    for (size_t i = 0; i < scene_.drivers.size(); ++i) {
+      const io::DriverSpec& d = scene_.drivers[i];
+      if (driver_added_[i] || t + 1e-12 * scene_.h < d.start) continue;
+      Driver<Dim> drv;
+      drv.vertices = io::select_vertices(d.vertices, mesh());
+      drv.start = d.start;
+      drv.stop = d.stop;
+      drv.release_at_stop = d.release_at_stop;
+      if (d.kind == io::DriverSpec::Kind::Twist) {
+        drv.kind = Driver<Dim>::Kind::Twist;
+        drv.axis = Vec<3>::Unit(Dim == 3 ? d.axis : 2);
+        drv.angular_velocity = d.angular_velocity;
+        Vec<Dim> c = Vec<Dim>::Zero();
+        if (d.center) {
+          c = d.center->template head<Dim>();
+        } else {
+          // The centroid of the driven vertices where they are when the driver starts.
+          for (Index v : drv.vertices) c += sim_.positions().row(v).transpose();
+          c /= static_cast<double>(drv.vertices.size());
+        }
+        drv.center.setZero();
+        drv.center.template head<Dim>() = c;
+      } else {
+        drv.kind = Driver<Dim>::Kind::Pull;
+        drv.velocity.setZero();
+        drv.velocity.template head<Dim>() = d.velocity.template head<Dim>();
+      }
+      sim_.add_driver(std::move(drv));
+      driver_added_[i] = true;
+    }
+  }
+
+  void apply_forces(double t) {
+    if (scene_.forces.empty()) return;
+    VertexMatrix<Dim> F = VertexMatrix<Dim>::Zero(mesh().num_vertices(), Dim);
+    for (size_t i = 0; i < scene_.forces.size(); ++i) {
+      const io::ForceSpec& f = scene_.forces[i];
+      if (t < f.start || t >= f.stop) continue;
+      const VectorX fv = io::per_vertex_force(f, static_cast<Index>(force_vertices_[i].size()));
+      for (Index v : force_vertices_[i]) F.row(v) += fv.head<Dim>().transpose();
+    }
+    sim_.set_external_forces(F);
+  }
+
+  io::SceneSpec scene_;
+  io::MeshWithRegions<Dim> built_;
+  MaterialField materials_;
+  SolverOptions options_;
+  Solver<Dim, Energy> sim_;
+  std::vector<bool> driver_added_;
+  std::vector<std::vector<Index>> force_vertices_;
+};
+
+}  // namespace diffphd
