@@ -7,6 +7,7 @@ on the same machine, and the table reports each one against plain PD at the same
 usage: bench/bench_forward.py [--cli build/examples/diffphd] [--out bench/results-forward]
                               [--contrasts 1,10,100,1000,10000] [--windows 0,1,5]
                               [--cantilever-frames 60] [--armadillo-frames 10] [--quick]
+                              [--only cantilever|armadillo] [--gate paper|step-relative]
 Writes OUT.csv and OUT.json, and prints a Markdown table (docs/benchmarks-forward.md keeps it).
 """
 import argparse
@@ -50,6 +51,7 @@ def main():
     ap.add_argument("--cantilever-frames", type=int, default=60)
     ap.add_argument("--armadillo-frames", type=int, default=10)
     ap.add_argument("--quick", action="store_true", help="cantilever only, 10 frames")
+    ap.add_argument("--only", choices=["cantilever", "armadillo"], help="run one scene only")
     ap.add_argument("--gate", choices=["paper", "step-relative"], help="dual-gate scale")
     a = ap.parse_args()
     contrasts = [float(c) for c in a.contrasts.split(",")]
@@ -57,6 +59,8 @@ def main():
     scenes = [("scenes/cantilever_twist.json", 10 if a.quick else a.cantilever_frames)]
     if not a.quick:
         scenes.append(("scenes/armadillo_twist.json", a.armadillo_frames))
+    if a.only:
+        scenes = [s for s in scenes if a.only in s[0]]
     results = []
     for scene, frames in scenes:
         for c in contrasts:
@@ -80,7 +84,7 @@ def main():
         json.dump(results, f, indent=1)
     base = {(r["name"], r["contrast_factor"]): r for r in results if r["window"] == 0}
     print("| scene | contrast | method | mean it/step | max it | converged | median ms/step | "
-          "it vs plain | time vs plain | min det F |")
+          "it vs plain | total time vs plain | min det F |")
     print("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in results:
         b = base.get((r["name"], r["contrast_factor"]))
