@@ -58,9 +58,9 @@ TEST_CASE("SceneSimulation: a scene built for another energy or dimension is an 
           "[scene][solver]") {
   const io::SceneSpec s = io::load_scene(kData + "good_small.json");  // 3D, "corotated"
   CHECK_NOTHROW(SceneSimulation<3, Corotated>(s));
-  CHECK_THROWS_WITH((SceneSimulation<3, NeoHookeanProx>(s)),
-                    Contains("good_small.json: solver.energy is \"corotated\"") &&
-                        Contains("\"neo-hookean\""));
+  CHECK_THROWS_WITH(
+      (SceneSimulation<3, NeoHookeanProx>(s)),
+      Contains("good_small.json: solver.energy is \"corotated\"") && Contains("\"neo-hookean\""));
   CHECK_THROWS_WITH((SceneSimulation<2, Corotated>(s)), Contains("the scene is 3D"));
 }
 

@@ -73,9 +73,8 @@ inline SolverOptions scene_solver_options(const io::SceneSpec& scene, int dim,
   so.eps_abs = scene.solver.eps_abs;
   so.max_iterations = over.max_iterations.value_or(scene.solver.max_iterations);
   so.routing = to_weight_routing(over.routing.value_or(scene.solver.routing));
-  so.gate_scale = over.gate.value_or(scene.solver.gate == io::Gate::StepRelative
-                                         ? GateScale::StepRelative
-                                         : GateScale::Paper);
+  so.gate_scale = over.gate.value_or(
+      scene.solver.gate == io::Gate::StepRelative ? GateScale::StepRelative : GateScale::Paper);
   so.gravity.setZero();
   for (int k = 0; k < dim && k < scene.gravity.size(); ++k) so.gravity[k] = scene.gravity[k];
   return so;
@@ -102,7 +101,8 @@ class SceneSimulation {
       for (int k = 0; k < Dim; ++k) any |= (axes[k] = mask(v, k));
       if (any) sim_.fix_vertices({v}, axes);
     }
-    sim_.set_state(mesh().rest_positions(), io::initial_velocities<Dim>(scene_, mesh(), materials_));
+    sim_.set_state(mesh().rest_positions(),
+                   io::initial_velocities<Dim>(scene_, mesh(), materials_));
     for (const io::ForceSpec& f : scene_.forces)
       force_vertices_.push_back(io::select_vertices(f.vertices, mesh()));
     // Drivers' vertex sets are checked now, not when they start.
@@ -134,8 +134,7 @@ class SceneSimulation {
     constexpr auto kind = scene_energy_kind<Energy>();
     if constexpr (kind.has_value()) {
       if (scene.solver.energy != *kind)
-        throw InputError(scene.file + ": solver.energy is \"" +
-                         io::to_string(scene.solver.energy) +
+        throw InputError(scene.file + ": solver.energy is \"" + io::to_string(scene.solver.energy) +
                          "\" but the simulation was built for \"" + io::to_string(*kind) + "\"");
     }
     return scene;
