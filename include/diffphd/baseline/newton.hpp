@@ -205,7 +205,7 @@ class NewtonSolver {
     positions_ = mesh_.rest_positions();
     velocities_ = Positions::Zero(nv_, Dim);
     f_ext_ = Positions::Zero(nv_, Dim);
-    fixed_value_ = positions_;
+    bc_ = DirichletSet<Dim>(nv_);
     // Force unit: sum_e (2 mu_e + lambda_e) V_e^((Dim-1)/Dim), about the elastic force of a unit
     // strain; it sets the absolute floor of the convergence test.
     force_unit_ = 0;
@@ -218,31 +218,15 @@ class NewtonSolver {
   // ---- boundary conditions and loads ------------------------------------------------------
 
   /// Holds the listed vertices on the given axes at their current positions (as Solver).
-  void fix_vertices(const std::vector<Index>& v, std::array<bool, Dim> axes = all_axes()) {
-    for (Index i : v) check_vertex(i, "fix_vertices");
-    for (Index i : v)
-      for (int k = 0; k < Dim; ++k)
-        if (axes[k]) {
-          user_fixed_.emplace_back(i, k);
-          fixed_value_(i, k) = positions_(i, k);
-        }
+  void fix_vertices(const std::vector<Index>& v,
+                    std::array<bool, Dim> axes = detail::all_axes<Dim>()) {
+    bc_.fix(v, axes, positions_);
   }
   /// Adds scripted motion with Solver's semantics (see Driver). Reference positions are the
   /// current positions.
-  void add_driver(Driver<Dim> d) {
-    for (Index i : d.vertices) check_vertex(i, "add_driver");
-    if (!(d.stop >= d.start)) throw InputError("add_driver: stop must be >= start");
-    if (d.kind == Driver<Dim>::Kind::Twist && Dim == 3 && !(d.axis.template head<Dim>().norm() > 0))
-      throw InputError("add_driver: twist axis must be non-zero");
-    DriverState s;
-    s.reference.resize(static_cast<Index>(d.vertices.size()), Dim);
-    for (size_t j = 0; j < d.vertices.size(); ++j)
-      s.reference.row(static_cast<Index>(j)) = positions_.row(d.vertices[j]);
-    s.driver = std::move(d);
-    drivers_.push_back(std::move(s));
-  }
+  void add_driver(Driver<Dim> d) { bc_.add_driver(std::move(d), positions_); }
   /// Position of driven vertex j of driver d at time t (the same formula as Solver).
-  Vec<Dim> driver_position(int d, Index j, double t) const { return drive(drivers_.at(d), j, t); }
+  Vec<Dim> driver_position(int d, Index j, double t) const { return bc_.driver_position(d, j, t); }
   /// External forces (N per vertex, #V by Dim), held until changed.
   void set_external_forces(const Positions& f) {
     if (f.rows() != nv_)
@@ -469,25 +453,7 @@ class NewtonSolver {
  private:
   enum class Outcome { Converged, MaxIterations, LineSearchStalled, NonFinite, FactorFailed };
 
-  struct DriverState {
-    Driver<Dim> driver;
-    Positions reference;
-  };
-
-  static constexpr std::array<bool, Dim> all_axes() {
-    std::array<bool, Dim> a{};
-    for (int k = 0; k < Dim; ++k) a[k] = true;
-    return a;
-  }
-  static double seconds_since(std::chrono::steady_clock::time_point t0) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  }
   static VectorX flat(const Positions& x) { return Eigen::Map<const VectorX>(x.data(), x.size()); }
-  void check_vertex(Index i, const char* fn) const {
-    if (i < 0 || i >= nv_)
-      throw InputError(std::string(fn) + ": vertex " + std::to_string(i) + " out of range [0, " +
-                       std::to_string(nv_) + ")");
-  }
   static void validate_options(const NewtonOptions& o) {
     auto bad = [](const std::string& what) { throw InputError("NewtonOptions: " + what); };
     if (!(std::isfinite(o.h) && o.h > 0)) bad("h must be finite and > 0");
@@ -506,7 +472,7 @@ class NewtonSolver {
     std::ostringstream os;
     os << "step at t = " << t_ << ": " << what << "; state left at the start of the step";
     rep.message = os.str();
-    rep.seconds = seconds_since(t0);
+    rep.seconds = detail::seconds_since(t0);
     return rep;
   }
   /// Commits q (v = (q - q_t) / h) and finishes the report.
@@ -524,35 +490,18 @@ class NewtonSolver {
     rep.converged = converged;
     rep.advanced = true;
     if (converged) rep.message.clear();
-    rep.seconds = seconds_since(t0);
+    rep.seconds = detail::seconds_since(t0);
     return rep;
   }
 
-  Vec<Dim> drive(const DriverState& s, Index j, double t) const {
-    return driven_position<Dim>(s.driver, s.reference.row(j).transpose(), t);
-  }
-
-  /// fixed_ (per DoF) and xfix_ (values) at time t, with Solver's precedence (drivers last;
-  /// released drivers skipped once t > stop).
+  /// fixed_ (per DoF) and xfix_ (values) at time t, from the same DirichletSet as Solver's.
   void build_dirichlet(double t) {
-    const Index n = nv_ * Dim;
-    fixed_.assign(n, 0);
+    const auto mask = bc_.mask(t);
+    fixed_.assign(nv_ * Dim, 0);
+    for (Index v = 0; v < nv_; ++v)
+      for (int k = 0; k < Dim; ++k) fixed_[Dim * v + k] = mask(v, k);
     xfix_ = flat(positions_);
-    for (const auto& f : user_fixed_) {
-      fixed_[Dim * f.first + f.second] = 1;
-      xfix_[Dim * f.first + f.second] = fixed_value_(f.first, f.second);
-    }
-    for (const auto& s : drivers_) {
-      if (s.driver.release_at_stop && t > s.driver.stop) continue;
-      for (size_t j = 0; j < s.driver.vertices.size(); ++j) {
-        const Vec<Dim> x = drive(s, static_cast<Index>(j), t);
-        const Index v = s.driver.vertices[j];
-        for (int k = 0; k < Dim; ++k) {
-          fixed_[Dim * v + k] = 1;
-          xfix_[Dim * v + k] = x[k];
-        }
-      }
-    }
+    bc_.values(t, xfix_);
   }
   void impose(VectorX& q, const VectorX& values) const {
     for (Index i = 0; i < q.size(); ++i)
@@ -815,9 +764,7 @@ class NewtonSolver {
   Index nv_ = 0, ne_ = 0;
   VectorX mass_, mu_, lambda_;
   double force_unit_ = 0;
-  std::vector<std::pair<Index, int>> user_fixed_;
-  Positions fixed_value_;
-  std::vector<DriverState> drivers_;
+  DirichletSet<Dim> bc_;
   Positions positions_, velocities_, f_ext_;
   double t_ = 0;
   // Per-step data.

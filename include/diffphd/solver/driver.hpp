@@ -1,13 +1,18 @@
 #pragma once
 /// \file driver.hpp
-/// \brief Driver: scripted Dirichlet motion (fixed, twist, pull), shared by Solver and
-/// NewtonSolver so that both move boundaries identically.
+/// \brief Driver (scripted Dirichlet motion: fixed, twist, pull) and DirichletSet (fixed
+/// vertices plus drivers), shared by Solver and NewtonSolver so that both prescribe the same
+/// boundary values at every time.
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
 
+#include "../core/errors.hpp"
 #include "../core/types.hpp"
 
 namespace diffphd {
@@ -57,5 +62,97 @@ Vec<Dim> driven_position(const Driver<Dim>& d, const Vec<Dim>& X, double t) {
   }
   return X;
 }
+
+namespace detail {
+template <int Dim>
+constexpr std::array<bool, Dim> all_axes() {
+  std::array<bool, Dim> a{};
+  for (int k = 0; k < Dim; ++k) a[k] = true;
+  return a;
+}
+}  // namespace detail
+
+/// \brief The Dirichlet conditions of one body: vertices held (per axis) at the value they had
+/// when fixed, and drivers (later entries win). Drivers with release_at_stop prescribe nothing
+/// once t > stop.
+template <int Dim>
+class DirichletSet {
+ public:
+  using Mask = Eigen::Matrix<bool, Eigen::Dynamic, Dim>;
+
+  explicit DirichletSet(Index num_vertices = 0)
+      : nv_(num_vertices), fixed_value_(VertexMatrix<Dim>::Zero(num_vertices, Dim)) {}
+
+  /// Holds vertices `v` on `axes` at their positions in `x` (#V by Dim).
+  void fix(const std::vector<Index>& v, std::array<bool, Dim> axes, const VertexMatrix<Dim>& x) {
+    for (Index i : v) check_vertex(i, "fix_vertices");
+    for (Index i : v)
+      for (int k = 0; k < Dim; ++k)
+        if (axes[k]) {
+          fixed_.emplace_back(i, k);
+          fixed_value_(i, k) = x(i, k);
+        }
+  }
+  /// Adds a driver; its reference positions are the driven vertices' positions in `x`.
+  void add_driver(Driver<Dim> d, const VertexMatrix<Dim>& x) {
+    for (Index i : d.vertices) check_vertex(i, "add_driver");
+    if (!(d.stop >= d.start)) throw InputError("add_driver: stop must be >= start");
+    if (d.kind == Driver<Dim>::Kind::Twist && Dim == 3 && !(d.axis.norm() > 0))
+      throw InputError("add_driver: twist axis must be non-zero");
+    State s;
+    s.reference.resize(static_cast<Index>(d.vertices.size()), Dim);
+    for (size_t j = 0; j < d.vertices.size(); ++j)
+      s.reference.row(static_cast<Index>(j)) = x.row(d.vertices[j]);
+    s.driver = std::move(d);
+    drivers_.push_back(std::move(s));
+  }
+  /// Position of driven vertex j (index into its vertex list) of driver d at time t.
+  Vec<Dim> driver_position(int d, Index j, double t) const {
+    const State& s = drivers_.at(d);
+    return driven_position<Dim>(s.driver, s.reference.row(j).transpose(), t);
+  }
+  /// #V by Dim: the DoFs prescribed at time t.
+  Mask mask(double t) const {
+    Mask m = Mask::Constant(nv_, Dim, false);
+    for (const auto& f : fixed_) m(f.first, f.second) = true;
+    for (const auto& s : drivers_)
+      if (active(s, t))
+        for (Index v : s.driver.vertices) m.row(v).setConstant(true);
+    return m;
+  }
+  /// Writes the prescribed values at time t into `q` (flat, entry Dim v + k); other entries are
+  /// left as they are.
+  void values(double t, VectorX& q) const {
+    for (const auto& f : fixed_) q[Dim * f.first + f.second] = fixed_value_(f.first, f.second);
+    for (size_t d = 0; d < drivers_.size(); ++d) {
+      const State& s = drivers_[d];
+      if (!active(s, t)) continue;
+      for (size_t j = 0; j < s.driver.vertices.size(); ++j) {
+        const Vec<Dim> x = driver_position(static_cast<int>(d), static_cast<Index>(j), t);
+        for (int k = 0; k < Dim; ++k) q[Dim * s.driver.vertices[j] + k] = x[k];
+      }
+    }
+  }
+  bool empty() const { return fixed_.empty() && drivers_.empty(); }
+
+ private:
+  struct State {
+    Driver<Dim> driver;
+    VertexMatrix<Dim> reference;
+  };
+  static bool active(const State& s, double t) {
+    return !(s.driver.release_at_stop && t > s.driver.stop);
+  }
+  void check_vertex(Index i, const char* fn) const {
+    if (i < 0 || i >= nv_)
+      throw InputError(std::string(fn) + ": vertex " + std::to_string(i) + " out of range [0, " +
+                       std::to_string(nv_) + ")");
+  }
+
+  Index nv_;
+  std::vector<std::pair<Index, int>> fixed_;
+  VertexMatrix<Dim> fixed_value_;
+  std::vector<State> drivers_;
+};
 
 }  // namespace diffphd

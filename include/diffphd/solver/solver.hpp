@@ -223,7 +223,7 @@ class Solver {
     velocities_ = VertexMatrix<Dim>::Zero(nv_, Dim);
     f_ext_ = VertexMatrix<Dim>::Zero(nv_, Dim);
     mask_ = FixedMask::Constant(nv_, Dim, false);
-    fixed_value_ = positions_;
+    bc_ = DirichletSet<Dim>(nv_);
     muscle_k_ = VectorX::Zero(ne_);
     fibres_ = MatrixX::Zero(ne_, 3);
     fibres_.col(0).setOnes();
@@ -245,32 +245,14 @@ class Solver {
 
   /// Holds the listed vertices on the given axes at their current positions (the rest positions
   /// before any step). Changes the Dirichlet set: the next step refactors once.
-  void fix_vertices(const std::vector<Index>& v, std::array<bool, Dim> axes = all_axes()) {
-    for (Index i : v) check_vertex(i, "fix_vertices");
-    for (Index i : v)
-      for (int k = 0; k < Dim; ++k)
-        if (axes[k]) {
-          user_fixed_.emplace_back(i, k);
-          fixed_value_(i, k) = positions_(i, k);
-        }
+  void fix_vertices(const std::vector<Index>& v,
+                    std::array<bool, Dim> axes = detail::all_axes<Dim>()) {
+    bc_.fix(v, axes, positions_);
   }
   /// Adds scripted motion (see Driver). Reference positions are the current positions.
-  void add_driver(Driver<Dim> d) {
-    for (Index i : d.vertices) check_vertex(i, "add_driver");
-    if (!(d.stop >= d.start)) throw InputError("add_driver: stop must be >= start");
-    DriverState s;
-    s.reference.resize(static_cast<Index>(d.vertices.size()), Dim);
-    for (size_t j = 0; j < d.vertices.size(); ++j)
-      s.reference.row(static_cast<Index>(j)) = positions_.row(d.vertices[j]);
-    s.driver = std::move(d);
-    if (s.driver.kind == Driver<Dim>::Kind::Twist) {
-      if (!(s.driver.axis.template head<Dim>().norm() > 0) && Dim == 3)
-        throw InputError("add_driver: twist axis must be non-zero");
-    }
-    drivers_.push_back(std::move(s));
-  }
+  void add_driver(Driver<Dim> d) { bc_.add_driver(std::move(d), positions_); }
   /// Position of driven vertex j of driver d at time t (as the solver prescribes it).
-  Vec<Dim> driver_position(int d, Index j, double t) const { return drive(drivers_.at(d), j, t); }
+  Vec<Dim> driver_position(int d, Index j, double t) const { return bc_.driver_position(d, j, t); }
   /// External forces (N per vertex, #V by Dim), held until changed. Not validated here: a
   /// non-finite force makes the next step report NonFinite.
   void set_external_forces(const VertexMatrix<Dim>& f) {
@@ -444,7 +426,7 @@ class Solver {
       }
     t_ = t1;
     last_iterate_prev_ = q_prev;
-    rep.seconds = seconds_since(t_start);
+    rep.seconds = detail::seconds_since(t_start);
     return rep;
   }
 
@@ -507,26 +489,8 @@ class Solver {
   }
 
  private:
-  struct DriverState {
-    Driver<Dim> driver;
-    VertexMatrix<Dim> reference;
-  };
-
-  static constexpr std::array<bool, Dim> all_axes() {
-    std::array<bool, Dim> a{};
-    for (int k = 0; k < Dim; ++k) a[k] = true;
-    return a;
-  }
-  static double seconds_since(std::chrono::steady_clock::time_point t0) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  }
   static Vector flat(const VertexMatrix<Dim>& x) {
     return Eigen::Map<const Vector>(x.data(), x.size());
-  }
-  void check_vertex(Index i, const char* fn) const {
-    if (i < 0 || i >= nv_)
-      throw InputError(std::string(fn) + ": vertex " + std::to_string(i) + " out of range [0, " +
-                       std::to_string(nv_) + ")");
   }
   static void validate_options(const SolverOptions& o) {
     auto bad = [](const std::string& what) { throw InputError("SolverOptions: " + what); };
@@ -547,7 +511,7 @@ class Solver {
     std::ostringstream os;
     os << "step at t = " << t_ << ": " << what << "; state left at the start of the step";
     rep.message = os.str();
-    rep.seconds = seconds_since(t0);
+    rep.seconds = detail::seconds_since(t0);
     return rep;
   }
 
@@ -625,12 +589,7 @@ class Solver {
   /// Dirichlet mask at the end of the coming step and refactor if anything changed.
   void prepare_system() {
     const double t1 = t_ + options_.h;
-    FixedMask mask = FixedMask::Constant(nv_, Dim, false);
-    for (const auto& f : user_fixed_) mask(f.first, f.second) = true;
-    for (auto& s : drivers_) {
-      if (s.driver.release_at_stop && t1 > s.driver.stop) continue;
-      for (Index v : s.driver.vertices) mask.row(v).setConstant(true);
-    }
+    const FixedMask mask = bc_.mask(t1);
     if (stale_) {
       // Set the mask first (PDSystem refactors the old matrix on a mask change; harmless but
       // counted), then factor the new matrix.
@@ -645,22 +604,10 @@ class Solver {
     }
   }
 
-  Vec<Dim> drive(const DriverState& s, Index j, double t) const {
-    return driven_position<Dim>(s.driver, s.reference.row(j).transpose(), t);
-  }
-
   /// xfix_ = prescribed values at time t (only fixed DoFs are read).
   void build_dirichlet_values(double t) {
     xfix_ = flat(positions_);
-    for (const auto& f : user_fixed_)
-      xfix_[Dim * f.first + f.second] = fixed_value_(f.first, f.second);
-    for (const auto& s : drivers_) {
-      if (s.driver.release_at_stop && t > s.driver.stop) continue;
-      for (size_t j = 0; j < s.driver.vertices.size(); ++j) {
-        const Vec<Dim> x = drive(s, static_cast<Index>(j), t);
-        for (int k = 0; k < Dim; ++k) xfix_[Dim * s.driver.vertices[j] + k] = x[k];
-      }
-    }
+    bc_.values(t, xfix_);
   }
   /// Dirichlet enforcement: q = x_fixed on fixed DoFs.
   void impose(Vector& q) const {
@@ -735,9 +682,7 @@ class Solver {
   PDSystem<Dim> system_;
   bool stale_ = true;
   FixedMask mask_;
-  std::vector<std::pair<Index, int>> user_fixed_;
-  VertexMatrix<Dim> fixed_value_;
-  std::vector<DriverState> drivers_;
+  DirichletSet<Dim> bc_;
   VertexMatrix<Dim> positions_, velocities_, f_ext_;
   double t_ = 0;
   Vector xfix_, last_iterate_prev_;
