@@ -10,6 +10,8 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <sstream>
+#include <stdexcept>
 #include <string>
 
 #include <CLI/CLI.hpp>
@@ -21,6 +23,7 @@
 #include <diffphd/io/vtk.hpp>
 #include <diffphd/io/scene.hpp>
 
+#include "bench.hpp"
 #include "scene_run.hpp"
 
 namespace fs = std::filesystem;
@@ -121,9 +124,73 @@ int main(int argc, char** argv) {
   run->add_flag("--no-frames", no_frames, "Write stats and summary only");
   run->add_flag("--json", json_out, "Print the summary as one JSON object on stdout");
 
+  diffphd::cli::BenchOptions bench_opt;
+  std::string methods_csv, tolerances_csv, contrasts_csv;
+  std::optional<int> bench_frames;
+  bool bench_no_progress = false;
+  auto* bench = app.add_subcommand(
+      "bench", "Run methods on one scene against a converged Newton reference (results.csv)");
+  bench->add_option("SCENE", bench_opt.scene_path, "Scene file (JSON)")->required();
+  bench->add_option("--methods", methods_csv, "Comma list of diffphd, pd, newton (default all)");
+  bench->add_option("--tolerances", tolerances_csv,
+                    "Comma list: eps_rel of the PD methods, gradient tolerance of Newton "
+                    "(default 1e-2,1e-3,1e-4,1e-5)");
+  bench->add_option("--contrasts", contrasts_csv,
+                    "Comma list of --contrast factors (default: the scene's own)");
+  bench->add_option("--frames", bench_frames, "Frames per run (default: the scene's)")
+      ->check(CLI::PositiveNumber);
+  bench
+      ->add_option("--reference-tolerance", bench_opt.reference_tolerance,
+                   "Gradient tolerance of the Newton reference (default 1e-10)")
+      ->check(CLI::PositiveNumber);
+  bench
+      ->add_option("--model-reference-eps", bench_opt.model_reference_eps,
+                   "eps_rel of the converged same-model PD references (default 1e-9)")
+      ->check(CLI::PositiveNumber);
+  std::string bench_gate;
+  bench
+      ->add_option("--gate", bench_gate, "Dual-gate scale of the PD methods: paper | step-relative")
+      ->check(CLI::IsMember({"paper", "step-relative"}));
+  bench->add_flag("--features", bench_opt.features,
+                  "Also the feature-cost runs: energies, damping, Anderson window");
+  bench->add_flag("--no-progress", bench_no_progress, "No progress bar");
+  bench->add_option("--out", bench_opt.out_dir, "Output directory (results.csv)")->required();
+
   CLI11_PARSE(app, argc, argv);
   try {
     if (*info) return cmd_mesh_info(mesh_path, json_out);
+    if (*bench) {
+      auto split = [](const std::string& csv, const char* what) {
+        std::vector<std::string> out;
+        std::stringstream ss(csv);
+        std::string item;
+        while (std::getline(ss, item, ','))
+          if (!item.empty()) out.push_back(item);
+        if (out.empty()) throw diffphd::InputError(std::string(what) + ": empty list");
+        return out;
+      };
+      auto numbers = [&](const std::string& csv, const char* what) {
+        std::vector<double> out;
+        for (const std::string& s : split(csv, what)) {
+          try {
+            size_t used = 0;
+            const double x = std::stod(s, &used);
+            if (used != s.size()) throw std::invalid_argument(s);
+            out.push_back(x);
+          } catch (const std::logic_error&) {
+            throw diffphd::InputError(std::string(what) + ": not a number: \"" + s + "\"");
+          }
+        }
+        return out;
+      };
+      if (!methods_csv.empty()) bench_opt.methods = split(methods_csv, "--methods");
+      if (!tolerances_csv.empty()) bench_opt.tolerances = numbers(tolerances_csv, "--tolerances");
+      if (!contrasts_csv.empty()) bench_opt.contrasts = numbers(contrasts_csv, "--contrasts");
+      bench_opt.frames = bench_frames;
+      if (!bench_gate.empty()) bench_opt.step_relative_gate = bench_gate == "step-relative";
+      bench_opt.progress = !bench_no_progress;
+      return diffphd::cli::cmd_bench(bench_opt);
+    }
     if (*run) {
       diffphd::cli::RunOptions opt;
       opt.out_dir = out_dir;

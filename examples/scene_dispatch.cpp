@@ -1,4 +1,5 @@
 // Picks the dimension and the energy of a scene and runs it.
+#include "scene_bench.hpp"
 #include "scene_run.hpp"
 
 namespace diffphd::cli {
@@ -20,6 +21,32 @@ static nlohmann::json run_dim(const io::SceneSpec& scene, const RunOptions& opt)
 
 nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   return io::scene_dimension(scene) == 2 ? run_dim<2>(scene, opt) : run_dim<3>(scene, opt);
+}
+
+template <int Dim>
+static BenchRun bench_dim(const io::SceneSpec& scene, const SceneOverrides& over, int frames) {
+  switch (scene.solver.energy) {
+    case io::EnergyKind::CorotatedVolume:
+      return bench_pd<Dim, Energies<Corotated, Volume>>(scene, over, frames);
+    case io::EnergyKind::Corotated:
+      return bench_pd<Dim, Corotated>(scene, over, frames);
+    case io::EnergyKind::NeoHookean:
+      return bench_pd<Dim, NeoHookeanProx>(scene, over, frames);
+    case io::EnergyKind::NeoHookeanLogVolume:
+      return bench_pd<Dim, Energies<NeoHookeanProx, LogVolume>>(scene, over, frames);
+  }
+  throw InputError(scene.file + ": unknown energy");
+}
+
+BenchRun bench_pd_dispatch(const io::SceneSpec& scene, const SceneOverrides& over, int frames) {
+  return io::scene_dimension(scene) == 2 ? bench_dim<2>(scene, over, frames)
+                                         : bench_dim<3>(scene, over, frames);
+}
+
+BenchRun bench_newton_dispatch(const io::SceneSpec& scene, const NewtonOptions& options,
+                               int frames) {
+  return io::scene_dimension(scene) == 2 ? bench_newton<2>(scene, options, frames)
+                                         : bench_newton<3>(scene, options, frames);
 }
 
 }  // namespace diffphd::cli

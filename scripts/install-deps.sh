@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# Installs the Debian packages diffphd needs to build and test (and, with --demo, to draw the
-# demo's chart). Skips apt-get when everything is already installed. Run as root (or with sudo).
+# Installs the Debian packages diffphd needs to build and test (python3-matplotlib: the demo's
+# chart and the bench charts, whose script has a self-test). --demo is kept for compatibility.
+# Skips apt-get when everything is already installed. Run as root (or with sudo).
 set -euo pipefail
 packages=(build-essential cmake ninja-build ccache pkg-config
           libeigen3-dev libmetis-dev libsuitesparse-dev libopenblas-dev
-          catch2 libcli11-dev liblbfgspp-dev nlohmann-json3-dev)
-if [[ "${1:-}" == "--demo" ]]; then packages+=(python3-matplotlib); fi
+          catch2 libcli11-dev liblbfgspp-dev nlohmann-json3-dev python3-matplotlib)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -1,6 +1,7 @@
 #pragma once
 /// \file scene_simulation.hpp
-/// \brief SceneSimulation: a scene file (io::SceneSpec) set up on the forward solver: mesh,
+/// \brief SceneSimulation (PD) and NewtonSceneSimulation (reference): a scene file
+/// (io::SceneSpec) set up on a solver: mesh,
 /// materials, Dirichlet set, initial velocities, drivers (each handed over when the clock
 /// reaches its start) and per-step external forces. `diffphd run` and the scene tests both step
 /// through this one class, so a test of a shipped scene tests what users run.
@@ -20,6 +21,7 @@
 #include <utility>
 #include <vector>
 
+#include "../baseline/newton.hpp"
 #include "../energy/energy.hpp"
 #include "../io/scene.hpp"
 #include "solver.hpp"
@@ -80,19 +82,21 @@ inline SolverOptions scene_solver_options(const io::SceneSpec& scene, int dim,
   return so;
 }
 
-/// \brief A scene on the forward solver. Owns the mesh, the materials and the Solver.
-template <int Dim, class Energy>
-class SceneSimulation {
+/// \brief A scene on any solver with Solver's scene-facing interface (`fix_vertices`,
+/// `add_driver`, `set_external_forces`, `set_state`, `step`, `positions`, `time`): builds the
+/// mesh, materials, Dirichlet set and initial velocities, hands each driver over when the clock
+/// reaches its start, and applies the forces active at each step. Owns the mesh, the materials
+/// and the solver. SceneSimulation (PD) and NewtonSceneSimulation (the Newton reference) are
+/// this class with the solver's options computed from the scene.
+template <int Dim, class Sim>
+class SceneRunner {
  public:
-  /// Builds everything the scene describes. Throws InputError (naming the scene file) on a bad
-  /// scene, a scene of the other dimension, or a scene whose "solver.energy" names a shipped
-  /// energy other than `Energy`.
-  explicit SceneSimulation(const io::SceneSpec& scene, const SceneOverrides& over = {})
-      : scene_(checked(scene)),
+  template <class Options>
+  SceneRunner(const io::SceneSpec& scene, const Options& options)
+      : scene_(checked_dimension(scene)),
         built_(io::build_mesh_with_regions<Dim>(scene_)),
         materials_(io::build_materials<Dim>(scene_, built_.mesh, built_.region)),
-        options_(scene_solver_options(scene_, Dim, over)),
-        sim_(built_.mesh, materials_, options_),
+        sim_(built_.mesh, materials_, options),
         driver_added_(scene_.drivers.size(), false) {
     const auto mask = io::fixed_mask<Dim>(scene_, mesh());
     for (Index v = 0; v < mesh().num_vertices(); ++v) {
@@ -110,8 +114,8 @@ class SceneSimulation {
   }
 
   /// One solver step at the current time: drivers due by now are added (from the positions
-  /// reached), the scene's forces active now are applied, then Solver::step().
-  StepReport step() {
+  /// reached), the scene's forces active now are applied, then the solver's step().
+  auto step() {
     add_due_drivers(sim_.time());
     apply_forces(sim_.time());
     return sim_.step();
@@ -122,21 +126,14 @@ class SceneSimulation {
   /// Per-element region ids of the mesh file / generator (0 where it has none).
   const std::vector<int>& mesh_regions() const { return built_.region; }
   const MaterialField& materials() const { return materials_; }
-  const SolverOptions& options() const { return options_; }
-  Solver<Dim, Energy>& solver() { return sim_; }
-  const Solver<Dim, Energy>& solver() const { return sim_; }
+  Sim& solver() { return sim_; }
+  const Sim& solver() const { return sim_; }
 
  private:
-  static const io::SceneSpec& checked(const io::SceneSpec& scene) {
+  static const io::SceneSpec& checked_dimension(const io::SceneSpec& scene) {
     if (io::scene_dimension(scene) != Dim)
       throw InputError(scene.file + ": the scene is " + std::to_string(io::scene_dimension(scene)) +
                        "D, the simulation " + std::to_string(Dim) + "D");
-    constexpr auto kind = scene_energy_kind<Energy>();
-    if constexpr (kind.has_value()) {
-      if (scene.solver.energy != *kind)
-        throw InputError(scene.file + ": solver.energy is \"" + io::to_string(scene.solver.energy) +
-                         "\" but the simulation was built for \"" + io::to_string(*kind) + "\"");
-    }
     return scene;
   }
 
@@ -188,10 +185,64 @@ class SceneSimulation {
   io::SceneSpec scene_;
   io::MeshWithRegions<Dim> built_;
   MaterialField materials_;
-  SolverOptions options_;
-  Solver<Dim, Energy> sim_;
+  Sim sim_;
   std::vector<bool> driver_added_;
   std::vector<std::vector<Index>> force_vertices_;
+};
+
+/// \brief A scene on the PD forward solver Solver<Dim, Energy>.
+template <int Dim, class Energy>
+class SceneSimulation : public SceneRunner<Dim, Solver<Dim, Energy>> {
+  using Base = SceneRunner<Dim, Solver<Dim, Energy>>;
+
+ public:
+  /// Builds everything the scene describes. Throws InputError (naming the scene file) on a bad
+  /// scene, a scene of the other dimension, or a scene whose "solver.energy" names a shipped
+  /// energy other than `Energy`.
+  explicit SceneSimulation(const io::SceneSpec& scene, const SceneOverrides& over = {})
+      : Base(checked_energy(scene), scene_solver_options(scene, Dim, over)),
+        options_(scene_solver_options(scene, Dim, over)) {}
+
+  const SolverOptions& options() const { return options_; }
+
+ private:
+  static const io::SceneSpec& checked_energy(const io::SceneSpec& scene) {
+    constexpr auto kind = scene_energy_kind<Energy>();
+    if constexpr (kind.has_value()) {
+      if (scene.solver.energy != *kind)
+        throw InputError(scene.file + ": solver.energy is \"" + io::to_string(scene.solver.energy) +
+                         "\" but the simulation was built for \"" + io::to_string(*kind) + "\"");
+    }
+    return scene;
+  }
+  SolverOptions options_;
+};
+
+/// \brief Newton options for a scene: h, gravity and mass damping alpha from the scene; `tol`,
+/// `max_iterations` and the projection from `base`. Throws InputError when the scene asks for
+/// stiffness damping (beta0 > 0), which NewtonSolver does not model.
+inline NewtonOptions scene_newton_options(const io::SceneSpec& scene, int dim,
+                                          NewtonOptions base = {}) {
+  if (scene.solver.beta0 > 0)
+    throw InputError(scene.file +
+                     ": solver.damping.beta0 > 0: the Newton reference models mass "
+                     "damping (alpha) only");
+  base.h = scene.h;
+  base.alpha = scene.solver.alpha;
+  base.gravity.setZero();
+  for (int k = 0; k < dim && k < scene.gravity.size(); ++k) base.gravity[k] = scene.gravity[k];
+  return base;
+}
+
+/// \brief A scene on the projected-Newton reference NewtonSolver<Dim> (true per-element
+/// Neo-Hookean energy, whatever the scene's PD energy).
+template <int Dim>
+class NewtonSceneSimulation : public SceneRunner<Dim, NewtonSolver<Dim>> {
+  using Base = SceneRunner<Dim, NewtonSolver<Dim>>;
+
+ public:
+  explicit NewtonSceneSimulation(const io::SceneSpec& scene, const NewtonOptions& base = {})
+      : Base(scene, scene_newton_options(scene, Dim, base)) {}
 };
 
 }  // namespace diffphd

@@ -1,0 +1,173 @@
+// `diffphd bench SCENE`: the methods on one scene, in one process, against references.
+#include "bench.hpp"
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <sstream>
+
+#include "progress.hpp"
+#include "scene_bench.hpp"
+
+namespace diffphd::cli {
+
+namespace {
+
+std::string num(double x) {
+  if (std::isnan(x)) return "nan";
+  std::ostringstream os;
+  os.precision(9);
+  os << x;
+  return os.str();
+}
+
+struct Row {
+  std::string scene, method, feature;
+  double contrast = 1, tolerance = 0;
+  int frames = 0;
+  BenchRun run;
+  double error = NAN, error_same_model = NAN;
+};
+
+void write_csv(const std::string& path, const std::vector<Row>& rows) {
+  std::ofstream f(path);
+  if (!f) throw InputError("cannot write " + path);
+  f << "scene,contrast,method,tolerance,frames,steps,converged_steps,mean_iterations,"
+       "max_iterations,median_ms_per_step,total_seconds,max_rel_error,max_rel_error_same_model,"
+       "min_jacobian,status,feature\n";
+  for (const Row& r : rows) {
+    const BenchRun& b = r.run;
+    std::string status = b.status;
+    for (char& c : status)
+      if (c == ',' || c == '\n') c = ';';
+    f << r.scene << ',' << num(r.contrast) << ',' << r.method << ',' << num(r.tolerance) << ','
+      << r.frames << ',' << b.steps << ',' << b.converged_steps << ','
+      << num(b.steps ? double(b.iterations) / b.steps : 0.0) << ',' << b.max_iterations << ','
+      << num(b.median_ms()) << ',' << num(b.total_seconds()) << ',' << num(r.error) << ','
+      << num(r.error_same_model) << ',' << num(b.min_jacobian) << ',' << status << ',' << r.feature
+      << '\n';
+  }
+}
+
+}  // namespace
+
+int cmd_bench(const BenchOptions& opt) {
+  namespace fs = std::filesystem;
+  for (const std::string& m : opt.methods)
+    if (m != "diffphd" && m != "pd" && m != "newton")
+      throw InputError("--methods: unknown method \"" + m + "\" (diffphd, pd, newton)");
+  if (opt.tolerances.empty()) throw InputError("--tolerances: give at least one");
+  for (double t : opt.tolerances)
+    if (!(t > 0 && std::isfinite(t))) throw InputError("--tolerances: must be > 0");
+  if (opt.out_dir.empty()) throw InputError("--out: an output directory is required");
+  fs::create_directories(opt.out_dir);
+
+  std::vector<std::optional<double>> contrasts;
+  for (double c : opt.contrasts) contrasts.push_back(c);
+  if (contrasts.empty()) contrasts.push_back(std::nullopt);
+
+  const io::SceneSpec first = io::load_scene(opt.scene_path, contrasts.front());
+  const int frames = opt.frames.value_or(first.output.frames);
+  const std::string name = first.output.name.empty() ? "scene" : first.output.name;
+  const long runs_per_contrast = 1 + 2 +
+                                 static_cast<long>(opt.methods.size() * opt.tolerances.size()) +
+                                 (opt.features ? 8 : 0);
+  ProgressBar bar("bench " + name, runs_per_contrast * static_cast<long>(contrasts.size()),
+                  opt.progress);
+  std::vector<Row> rows;
+  const std::string csv = (fs::path(opt.out_dir) / "results.csv").string();
+
+  for (const auto& c : contrasts) {
+    const io::SceneSpec scene = io::load_scene(opt.scene_path, c);
+    const double contrast = c.value_or(scene.contrast.factor);
+    // The accuracy reference: Newton on the true Neo-Hookean energy, converged tightly.
+    NewtonOptions ref_opt;
+    ref_opt.tol = opt.reference_tolerance;
+    ref_opt.max_iterations = 500;
+    const BenchRun ref = bench_newton_dispatch(scene, ref_opt, frames);
+    bar.tick();
+    if (ref.status != "ok" || ref.converged_steps != ref.steps)
+      std::cerr << "diffphd bench: warning: the Newton reference at " << contrast
+                << "x: " << ref.converged_steps << "/" << ref.steps << " steps converged ("
+                << ref.status << ")\n";
+    // The same-model references: each PD configuration converged tightly (solver error only).
+    auto model_reference = [&](bool uniform) {
+      SceneOverrides o;
+      o.eps_rel = opt.model_reference_eps;
+      o.max_iterations = opt.model_reference_max_iterations;
+      if (uniform) o.routing = io::Routing::Uniform;
+      return bench_pd_dispatch(scene, o, frames);
+    };
+    std::map<bool, BenchRun> model_ref;
+    model_ref[false] = model_reference(false);
+    bar.tick();
+    model_ref[true] = model_reference(true);
+    bar.tick();
+
+    auto add = [&](const std::string& method, double tol, BenchRun run, bool uniform_model,
+                   const std::string& feature = "") {
+      Row r;
+      r.scene = name;
+      r.method = method;
+      r.feature = feature;
+      r.contrast = contrast;
+      r.tolerance = tol;
+      r.frames = frames;
+      r.error = max_relative_error(run, ref);
+      if (method != "newton")
+        r.error_same_model = max_relative_error(run, model_ref[uniform_model]);
+      r.run = std::move(run);
+      rows.push_back(std::move(r));
+      write_csv(csv, rows);  // the file is complete after every run
+      bar.tick();
+    };
+    for (const std::string& m : opt.methods)
+      for (double tol : opt.tolerances) {
+        if (m == "newton") {
+          NewtonOptions no;
+          no.tol = tol;
+          add(m, tol, bench_newton_dispatch(scene, no, frames), false);
+        } else {
+          SceneOverrides o;
+          o.eps_rel = tol;
+          if (opt.step_relative_gate)
+            o.gate = *opt.step_relative_gate ? GateScale::StepRelative : GateScale::Paper;
+          if (m == "pd") {
+            o.anderson = 0;
+            o.routing = io::Routing::Uniform;
+          }
+          add(m, tol, bench_pd_dispatch(scene, o, frames), m == "pd");
+        }
+      }
+    if (opt.features) {
+      // What modelling more costs, at the scene's own tolerance and settings.
+      const double tol = scene.solver.eps_rel;
+      for (io::EnergyKind e : {io::EnergyKind::CorotatedVolume, io::EnergyKind::NeoHookean,
+                               io::EnergyKind::NeoHookeanLogVolume}) {
+        io::SceneSpec s = scene;
+        s.solver.energy = e;
+        add("diffphd", tol, bench_pd_dispatch(s, {}, frames), false, io::to_string(e));
+      }
+      io::SceneSpec off = scene, on = scene;
+      off.solver.alpha = off.solver.beta0 = 0;
+      if (on.solver.alpha == 0 && on.solver.beta0 == 0) on.solver.alpha = 1.0;
+      add("diffphd", tol, bench_pd_dispatch(off, {}, frames), false, "damping off");
+      add("diffphd", tol, bench_pd_dispatch(on, {}, frames), false,
+          "damping on (alpha " + num(on.solver.alpha) + " 1/s; beta0 " + num(on.solver.beta0) +
+              " Pa s)");
+      for (int m : {0, 1, 5}) {
+        SceneOverrides o;
+        o.anderson = m;
+        add("diffphd", tol, bench_pd_dispatch(scene, o, frames), false,
+            "anderson " + std::to_string(m));
+      }
+    }
+  }
+  bar.finish();
+  std::cerr << "diffphd bench: wrote " << csv << " (" << rows.size() << " runs)\n";
+  return 0;
+}
+
+}  // namespace diffphd::cli
