@@ -123,6 +123,27 @@ int cmd_bench(const BenchOptions& opt) {
       write_csv(csv, rows);  // the file is complete after every run
       bar.tick();
     };
+    // The references themselves are rows too (method "reference-newton", "reference-diffphd",
+    // "reference-pd"), so a reader sees whether they converged and what they cost.
+    {
+      const std::vector<std::pair<std::string, const BenchRun*>> refs = {
+          {"reference-newton", &ref},
+          {"reference-diffphd", &model_ref[false]},
+          {"reference-pd", &model_ref[true]}};
+      for (const auto& [label, run] : refs) {
+        Row r;
+        r.scene = name;
+        r.method = label;
+        r.contrast = contrast;
+        r.tolerance =
+            label == "reference-newton" ? opt.reference_tolerance : opt.model_reference_eps;
+        r.frames = frames;
+        r.run = *run;
+        r.error = max_relative_error(*run, ref);
+        rows.push_back(std::move(r));
+      }
+      write_csv(csv, rows);
+    }
     for (const std::string& m : opt.methods)
       for (double tol : opt.tolerances) {
         if (m == "newton") {

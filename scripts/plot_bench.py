@@ -110,7 +110,9 @@ def read_rows(path):
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
         rows = [r for r in reader if any(text(r, k) for k in (reader.fieldnames or []))]
-    return rows
+    # "reference-*" rows are the converged reference runs themselves (diffphd bench writes them
+    # so their cost and convergence are on record); they are not methods to chart.
+    return [r for r in rows if not text(r, "method").startswith("reference-")]
 
 
 # ---------------------------------------------------------------- formatting
