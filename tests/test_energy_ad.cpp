@@ -28,14 +28,14 @@ struct NeoHookeanDensity {
   }
 };
 
-/// Eq. (16), written once, with its weight.
+/// Eq. (16) with the rest-consistent linear term (docs/energies.md), written once, with its weight.
 struct LogVolumeDensity {
   static double weight(double, double lambda) { return lambda; }
   template <class T, int Dim>
   static T psi(const Eigen::Matrix<T, Dim, 1>& s, const ProxMeans& m) {
-    T L = T(0);
-    for (int i = 0; i < Dim; ++i) L += log(s(i));
-    return -T(m.mu_bar) * L + T(0.5 * m.lambda_bar) * L * L;
+    T L = T(0), lin = T(0);
+    for (int i = 0; i < Dim; ++i) L += log(s(i)), lin += s(i) - T(1);
+    return T(m.mu_bar) * (lin - L) + T(0.5 * m.lambda_bar) * L * L;
   }
 };
 

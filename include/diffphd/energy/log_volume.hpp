@@ -8,22 +8,26 @@ namespace diffphd {
 
 namespace detail {
 
-/// phi(s) = -mu sum ln s_i + lambda/2 (sum ln s_j)^2 (s > 0).
+/// phi(s) = mu sum (s_i - 1 - ln s_i) + lambda/2 (sum ln s_j)^2 (s > 0): eq. (16) plus the
+/// linear term mu sum (s_i - 1), which makes s = 1 stationary (eq. 16 alone has grad -mu at
+/// rest, so every body would inflate) and changes neither the Hessian nor the barrier.
 template <class S, int Dim>
 struct LogVolumeStretchModel {
   S mu, lambda;
   DIFFPHD_HOST_DEVICE S value(const SVec<S, Dim>& s) const {
     const S L = sum_log<S, Dim>(s);
-    return -mu * L + S(0.5) * lambda * L * L;
+    S lin = S(0);
+    for (int i = 0; i < Dim; ++i) lin += s(i) - S(1);
+    return mu * (lin - L) + S(0.5) * lambda * L * L;
   }
-  /// grad_i = (lambda L - mu) / s_i; H_ii = (mu + lambda (1 - L)) / s_i^2,
+  /// grad_i = mu + (lambda L - mu) / s_i; H_ii = (mu + lambda (1 - L)) / s_i^2,
   /// H_ij = lambda / (s_i s_j).
   DIFFPHD_HOST_DEVICE void grad_hess(const SVec<S, Dim>& s, SVec<S, Dim>& g,
                                      SMat<S, Dim>& H) const {
     const S L = sum_log<S, Dim>(s);
     for (int i = 0; i < Dim; ++i) {
       const S inv = S(1) / s(i);
-      g(i) = (lambda * L - mu) * inv;
+      g(i) = mu + (lambda * L - mu) * inv;
       for (int j = 0; j < Dim; ++j)
         H(i, j) = i == j ? (mu + lambda * (S(1) - L)) * inv * inv : lambda * inv / s(j);
     }
@@ -32,7 +36,7 @@ struct LogVolumeStretchModel {
     const S L = sum_log<S, Dim>(s);
     Eigen::Matrix<S, Dim, 2> G;
     for (int i = 0; i < Dim; ++i) {
-      G(i, 0) = -S(1) / s(i);
+      G(i, 0) = S(1) - S(1) / s(i);
       G(i, 1) = L / s(i);
     }
     return G;
@@ -53,13 +57,13 @@ struct LogVolumePolicy {
 
 /// \brief Log-volume barrier prox (eq. 16), weight w = lambda; opt-in.
 ///
-/// p* = argmin_p k/2 ||F - p||^2 + phi(p), phi(s) = -mu sum ln s_i + lambda/2 (sum ln s_j)^2,
-/// by the same Newton on stretches as NeoHookeanProx (StretchProxTerm), with the same routing
-/// (mesh-wide means by default, k = k_bar). phi diverges as J -> 0+, so p* is never inverted.
-/// Note: grad phi(1) = -mu 1 != 0, so the prox of F = I is the isotropic stretch t I with
-/// k (t - 1) + (d lambda ln t - mu) / t = 0 (t > 1), not I: eq. (16) drops the I_1 term of
-/// Neo-Hookean and is meant to be combined with the corotated term, which supplies the rest
-/// state (docs/energies.md).
+/// p* = argmin_p k/2 ||F - p||^2 + phi(p), phi(s) = mu sum (s_i - 1 - ln s_i)
+/// + lambda/2 (sum ln s_j)^2, by the same Newton on stretches as NeoHookeanProx
+/// (StretchProxTerm), with the same routing (mesh-wide means by default, k = k_bar). phi
+/// diverges as J -> 0+, so p* is never inverted, and prox(I) = I. Eq. (16) as printed lacks the
+/// linear term mu sum (s_i - 1): its prox of F = I is t I with t > 1, so a body at rest inflates
+/// (measured: the Armadillo with neo-hookean+logvolume jumped to 50 J of kinetic energy in its
+/// first step); the term has zero Hessian, so the barrier and eq. (16)'s Hessian are unchanged.
 template <ProxRouting Routing = ProxRouting::MeshMeans>
 struct LogVolumeT : ModelProxTerm<detail::LogVolumePolicy, Routing> {
   static constexpr const char* name =
