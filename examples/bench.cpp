@@ -1,6 +1,7 @@
 // `diffphd bench SCENE`: the methods on one scene, in one process, against references.
 #include "bench.hpp"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -71,7 +72,13 @@ int cmd_bench(const BenchOptions& opt) {
   const io::SceneSpec first = io::load_scene(opt.scene_path, contrasts.front());
   const int frames = opt.frames.value_or(first.output.frames);
   const std::string name = first.output.name.empty() ? "scene" : first.output.name;
-  const long runs_per_contrast = 1 + 2 +
+  // Same-model references only for the PD configurations that run: diffphd (and the feature
+  // runs, which use its model) and pd (uniform weights).
+  auto runs = [&](const char* m) {
+    return std::find(opt.methods.begin(), opt.methods.end(), m) != opt.methods.end();
+  };
+  const bool need_diffphd_ref = runs("diffphd") || opt.features, need_pd_ref = runs("pd");
+  const long runs_per_contrast = 1 + need_diffphd_ref + need_pd_ref +
                                  static_cast<long>(opt.methods.size() * opt.tolerances.size()) +
                                  (opt.features ? 8 : 0);
   ProgressBar bar("bench " + name, runs_per_contrast * static_cast<long>(contrasts.size()),
@@ -101,10 +108,34 @@ int cmd_bench(const BenchOptions& opt) {
       return bench_pd_dispatch(scene, o, frames);
     };
     std::map<bool, BenchRun> model_ref;
-    model_ref[false] = model_reference(false);
-    bar.tick();
-    model_ref[true] = model_reference(true);
-    bar.tick();
+    if (need_diffphd_ref) {
+      model_ref[false] = model_reference(false);
+      bar.tick();
+    }
+    if (need_pd_ref) {
+      model_ref[true] = model_reference(true);
+      bar.tick();
+    }
+
+    // The references themselves are rows too (method "reference-newton", "reference-diffphd",
+    // "reference-pd"), so a reader sees whether they converged and what they cost.
+    auto push_reference = [&](const std::string& label, const BenchRun& run, double tol) {
+      Row r;
+      r.scene = name;
+      r.method = label;
+      r.contrast = contrast;
+      r.tolerance = tol;
+      r.frames = frames;
+      r.error = max_relative_error(run, ref);
+      r.run = run;
+      r.run.frames.clear();  // rows keep statistics; the trajectories stay with the references
+      rows.push_back(std::move(r));
+    };
+    push_reference("reference-newton", ref, opt.reference_tolerance);
+    if (need_diffphd_ref)
+      push_reference("reference-diffphd", model_ref[false], opt.model_reference_eps);
+    if (need_pd_ref) push_reference("reference-pd", model_ref[true], opt.model_reference_eps);
+    write_csv(csv, rows);
 
     auto add = [&](const std::string& method, double tol, BenchRun run, bool uniform_model,
                    const std::string& feature = "") {
@@ -117,33 +148,13 @@ int cmd_bench(const BenchOptions& opt) {
       r.frames = frames;
       r.error = max_relative_error(run, ref);
       if (method != "newton")
-        r.error_same_model = max_relative_error(run, model_ref[uniform_model]);
+        r.error_same_model = max_relative_error(run, model_ref.at(uniform_model));
       r.run = std::move(run);
+      r.run.frames.clear();  // errors taken: free the trajectory (#frames x #V x Dim doubles)
       rows.push_back(std::move(r));
       write_csv(csv, rows);  // the file is complete after every run
       bar.tick();
     };
-    // The references themselves are rows too (method "reference-newton", "reference-diffphd",
-    // "reference-pd"), so a reader sees whether they converged and what they cost.
-    {
-      const std::vector<std::pair<std::string, const BenchRun*>> refs = {
-          {"reference-newton", &ref},
-          {"reference-diffphd", &model_ref[false]},
-          {"reference-pd", &model_ref[true]}};
-      for (const auto& [label, run] : refs) {
-        Row r;
-        r.scene = name;
-        r.method = label;
-        r.contrast = contrast;
-        r.tolerance =
-            label == "reference-newton" ? opt.reference_tolerance : opt.model_reference_eps;
-        r.frames = frames;
-        r.run = *run;
-        r.error = max_relative_error(*run, ref);
-        rows.push_back(std::move(r));
-      }
-      write_csv(csv, rows);
-    }
     for (const std::string& m : opt.methods)
       for (double tol : opt.tolerances) {
         if (m == "newton") {

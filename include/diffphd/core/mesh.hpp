@@ -3,6 +3,7 @@
 /// \brief SimplicialMesh<Dim>: linear triangles (Dim = 2) or tetrahedra (Dim = 3) at rest.
 
 #include <algorithm>
+#include <limits>
 #include <array>
 #include <cmath>
 #include <map>
@@ -91,6 +92,15 @@ class SimplicialMesh {
     Mat<Dim> F = Mat<Dim>::Zero();
     for (int a = 0; a <= Dim; ++a) F += x.row(T_(e, a)).transpose() * grad_[e].col(a).transpose();
     return F;
+  }
+
+  /// min_e det F_e at positions x (#V by Dim): <= 0 when some element is inverted or flat;
+  /// +inf for a mesh without elements.
+  double min_jacobian(const Positions& x) const {
+    double m = std::numeric_limits<double>::infinity();
+    for (Index e = 0; e < num_elements(); ++e)
+      m = std::min(m, deformation_gradient(e, x).determinant());
+    return m;
   }
 
   /// The sparse gradient operator G, (Dim #E) by #V: rows [Dim e, Dim e + Dim) of G x are F_e^T.

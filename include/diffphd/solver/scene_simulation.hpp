@@ -200,10 +200,9 @@ class SceneSimulation : public SceneRunner<Dim, Solver<Dim, Energy>> {
   /// scene, a scene of the other dimension, or a scene whose "solver.energy" names a shipped
   /// energy other than `Energy`.
   explicit SceneSimulation(const io::SceneSpec& scene, const SceneOverrides& over = {})
-      : Base(checked_energy(scene), scene_solver_options(scene, Dim, over)),
-        options_(scene_solver_options(scene, Dim, over)) {}
+      : Base(checked_energy(scene), scene_solver_options(scene, Dim, over)) {}
 
-  const SolverOptions& options() const { return options_; }
+  const SolverOptions& options() const { return this->solver().options(); }
 
  private:
   static const io::SceneSpec& checked_energy(const io::SceneSpec& scene) {
@@ -215,7 +214,6 @@ class SceneSimulation : public SceneRunner<Dim, Solver<Dim, Energy>> {
     }
     return scene;
   }
-  SolverOptions options_;
 };
 
 /// \brief Newton options for a scene: h, gravity and mass damping alpha from the scene; `tol`,
