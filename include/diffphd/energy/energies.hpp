@@ -2,6 +2,8 @@
 /// \file energies.hpp
 /// \brief Energies<Terms...>: a sum of PD terms, the `Energy` policy of the solver.
 
+#include <algorithm>
+#include <limits>
 #include <type_traits>
 #include <utility>
 
@@ -103,6 +105,64 @@ struct acts_on_fibre : std::false_type {};
 template <class T>
 struct acts_on_fibre<T, std::void_t<decltype(T::acts_on_fibre)>>
     : std::integral_constant<bool, T::acts_on_fibre> {};
+
+template <class T>
+inline constexpr bool acts_on_fibre_v = acts_on_fibre<T>::value;
+
+/// Terms whose differential can take the trust-region filter (every StretchProxTerm).
+template <class T, int Dim, class = void>
+struct has_differential_filtered_svd : std::false_type {};
+template <class T, int Dim>
+struct has_differential_filtered_svd<
+    T, Dim,
+    std::void_t<decltype(T::template differential_filtered_svd<double, Dim>(
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const Eigen::Matrix<double, Dim, 1>&>(),
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const ElementParams&>(), std::declval<const ProxMeans&>(), 0.0))>>
+    : std::true_type {};
+
+/// Terms whose prox depends on (mu, lambda, k) and that give dp*/d(mu, lambda, k)
+/// (ModelProxTerm: NeoHookeanProx, LogVolume).
+template <class T, int Dim, class = void>
+struct has_param_differential : std::false_type {};
+template <class T, int Dim>
+struct has_param_differential<
+    T, Dim,
+    std::void_t<decltype(T::template param_differential<double, Dim>(
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const ElementParams&>(), std::declval<const ProxMeans&>(), 0.0))>>
+    : std::true_type {};
+
+/// Terms whose projection depends on material parameters through the prox (stretch proxes).
+template <class T, class = void>
+struct has_prox_routing : std::false_type {};
+template <class T>
+struct has_prox_routing<T, std::void_t<decltype(T::routing)>> : std::true_type {};
+
+/// T's differential with the prox Hessian filtered by tau (eqs. 24-25) where T supports it.
+template <class T, class S, int Dim>
+DIFFPHD_HOST_DEVICE inline Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential_filtered_with_svd(
+    const Eigen::Matrix<S, Dim, Dim>& F, const Eigen::Matrix<S, Dim, Dim>& U,
+    const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+    const ElementParams& p, const ProxMeans& means, S tau) {
+  if constexpr (has_differential_filtered_svd<T, Dim>::value)
+    return T::template differential_filtered_svd<S, Dim>(F, U, sigma, V, p, means, tau);
+  else
+    return differential_with_svd<T, S, Dim>(F, U, sigma, V, p, means);
+}
+
+/// The linear weight rule of a material term: (d w / d mu, d w / d lambda).
+template <class T>
+inline Eigen::Vector2d weight_gradient() {
+  if constexpr (acts_on_fibre_v<T>) {
+    return Eigen::Vector2d::Zero();
+  } else {
+    const double w0 = T::weight(0.0, 0.0);
+    return Eigen::Vector2d(T::weight(1.0, 0.0) - w0, T::weight(0.0, 1.0) - w0);
+  }
+}
 
 template <class T>
 struct TermChecks {
@@ -227,6 +287,116 @@ struct Energies {
       ((out += S(Terms::element_weight(p)) * Terms::template differential<S, Dim>(F, p, means)),
        ...);
     }
+    return out;
+  }
+
+  /// weighted_differential() with every stretch-prox term's prox Hessian H = H_psi + k I
+  /// replaced by the trust-region blend (1 - tau) H + tau |H| (eqs. 24-25); the other terms'
+  /// differentials are unchanged. tau = 0 is weighted_differential().
+  template <class S, int Dim>
+  static Eigen::Matrix<S, Dim * Dim, Dim * Dim> weighted_differential_filtered(
+      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means, S tau) {
+    Eigen::Matrix<S, Dim * Dim, Dim* Dim> out = Eigen::Matrix<S, Dim * Dim, Dim * Dim>::Zero();
+    Eigen::Matrix<S, Dim, Dim> U, V;
+    Eigen::Matrix<S, Dim, 1> sigma;
+    svd_rv<S, Dim>(F, U, sigma, V);
+    ((out += S(Terms::element_weight(p)) *
+             detail::differential_filtered_with_svd<Terms, S, Dim>(F, U, sigma, V, p, means, tau)),
+     ...);
+    return out;
+  }
+
+  /// True when some term is a stretch prox (its prox Hessian can turn indefinite).
+  static constexpr bool has_prox_terms = (detail::has_prox_routing<Terms>::value || ...);
+  /// True when every term's projection has derivatives in the material parameters (the
+  /// stretch proxes need param_differential; projections that do not read (mu, lambda) qualify).
+  template <int Dim>
+  static constexpr bool material_differentiable =
+      ((!detail::has_prox_routing<Terms>::value || detail::has_param_differential<Terms, Dim>::value) &&
+       ...);
+
+  /// The smallest eigenvalue of the stretch-prox terms' prox Hessians H_psi(s*) + k I at F
+  /// (eq. 23); +infinity when the pack has no stretch-prox term. Negative: the prox Hessian is
+  /// indefinite there and the backward filters change the differential.
+  template <int Dim>
+  static double min_prox_hessian_eigenvalue(const Eigen::Matrix<double, Dim, Dim>& F,
+                                            const ElementParams& p, const ProxMeans& means) {
+    double lo = std::numeric_limits<double>::infinity();
+    if constexpr (has_prox_terms) {
+      Eigen::Matrix<double, Dim, Dim> U, V;
+      Eigen::Matrix<double, Dim, 1> sigma;
+      svd_rv<double, Dim>(F, U, sigma, V);
+      (
+          [&] {
+            if constexpr (detail::has_prox_routing<Terms>::value) {
+              const Eigen::Matrix<double, Dim, 1> s =
+                  Terms::template stretches<double, Dim>(sigma, p, means);
+              lo = std::min(lo,
+                            Terms::template prox_hessian_eigenvalues<double, Dim>(s, p, means).minCoeff());
+            }
+          }(),
+          ...);
+    }
+    return lo;
+  }
+
+  /// \brief The material part of the adjoint of one element (Sec. 4.8, eq. 45 generalised).
+  ///
+  /// With mu_F = G_e mu (the adjoint's "deformation gradient") and F = G_e q*, each term k adds
+  /// to the derivative of the loss: through its weight w_k(mu, lambda), which scales both its
+  /// A block and its right-hand side, <mu_F, p_k(F) - F> dw_k; through the prox parameters of a
+  /// stretch prox, w_k <mu_F, dp_k/d(mu, lambda, k)>; through a fibre term's activation,
+  /// k_e <mu_F, (F m / |F m|) m^T>. The caller multiplies by V_e. tau filters the prox Hessian
+  /// inside dp_k/d(mu, lambda, k) as in weighted_differential_filtered().
+  struct MaterialAdjoint {
+    double d_mu = 0;      ///< w.r.t. the element's own (effective) mu_e
+    double d_lambda = 0;  ///< w.r.t. the element's own (effective) lambda_e
+    Eigen::Vector3d d_means = Eigen::Vector3d::Zero();  ///< w.r.t. the ProxMeans (mu, lambda, k)
+    double d_activation = 0;                            ///< w.r.t. the fibre activation a_e
+  };
+  template <int Dim>
+  static MaterialAdjoint material_adjoint(const Eigen::Matrix<double, Dim, Dim>& F,
+                                          const Eigen::Matrix<double, Dim, Dim>& mu_F,
+                                          const ElementParams& p, const ProxMeans& means,
+                                          double tau) {
+    static_assert(material_differentiable<Dim>,
+                  "Energies::material_adjoint: a stretch-prox term lacks param_differential()");
+    MaterialAdjoint out;
+    Eigen::Matrix<double, Dim, Dim> U, V;
+    Eigen::Matrix<double, Dim, 1> sigma;
+    svd_rv<double, Dim>(F, U, sigma, V);
+    (
+        [&] {
+          const double w = Terms::element_weight(p);
+          if constexpr (detail::acts_on_fibre_v<Terms>) {
+            ElementParams unit = p;
+            unit.activation = 1.0;
+            const Eigen::Matrix<double, Dim, 1> n = Terms::template project_fibre<double, Dim>(F, unit);
+            const Eigen::Matrix<double, Dim, 1> m = detail::fibre_direction<double, Dim>(p);
+            out.d_activation += w * n.dot(mu_F * m);
+          } else {
+            const Eigen::Vector2d wg = detail::weight_gradient<Terms>();
+            const Eigen::Matrix<double, Dim, Dim> pk =
+                detail::project_with_svd<Terms, double, Dim>(F, U, sigma, V, p, means, nullptr);
+            const double c = (mu_F.array() * (pk - F).array()).sum();
+            out.d_mu += c * wg[0];
+            out.d_lambda += c * wg[1];
+            if constexpr (detail::has_param_differential<Terms, Dim>::value) {
+              const Eigen::Matrix<double, Dim * Dim, 3> P =
+                  Terms::template param_differential<double, Dim>(F, p, means, tau);
+              const Eigen::Vector3d g =
+                  w * (P.transpose() *
+                       Eigen::Map<const Eigen::Matrix<double, Dim * Dim, 1>>(mu_F.data()));
+              if (Terms::routing == ProxRouting::MeshMeans) {
+                out.d_means += g;
+              } else {
+                out.d_mu += g[0] + g[2] * wg[0];
+                out.d_lambda += g[1] + g[2] * wg[1];
+              }
+            }
+          }
+        }(),
+        ...);
     return out;
   }
 

@@ -70,10 +70,12 @@ struct ModelProxTerm : StretchProxTerm<Policy, Routing> {
 
   /// dp*/d(mu, lambda, k) of the routed prox parameters (mu_bar, lambda_bar, k_bar under
   /// MeshMeans; under PerElement chain k_e = weight(mu_e, lambda_e) yourself), Dim^2 x 3:
-  /// ds* = -(H_psi + k I)^{-1} d(grad), d grad/dk = s* - sigma_F.
+  /// ds* = -(H_psi + k I)^{-1} d(grad), d grad/dk = s* - sigma_F. With tau > 0 the prox Hessian
+  /// is the trust-region blend (1 - tau) H + tau |H| of eq. (24), as in differential_filtered().
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim * Dim, 3> param_differential(
-      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means) {
+      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means,
+      S tau = S(0)) {
     using Term = ModelProxTerm;
     detail::SMat<S, Dim> U, V;
     detail::SVec<S, Dim> sigma;
@@ -81,8 +83,9 @@ struct ModelProxTerm : StretchProxTerm<Policy, Routing> {
     const detail::SVec<S, Dim> s = Term::template stretches<S, Dim>(sigma, p, means);
     const ProxParams q = Term::prox_params(p, means);
     const auto model = Policy::template model<S, Dim>(q, Term::routed_means(p, means));
-    const detail::SMat<S, Dim> Hinv =
-        detail::small_inverse<S, Dim>(Term::template prox_hessian<S, Dim>(s, p, means));
+    const detail::SMat<S, Dim> Hinv = detail::small_inverse<S, Dim>(
+        tau == S(0) ? Term::template prox_hessian<S, Dim>(s, p, means)
+                    : Term::template filtered_prox_hessian<S, Dim>(s, p, means, tau));
     Eigen::Matrix<S, Dim, 3> G;
     G.template leftCols<2>() = model.grad_param_derivative(s);
     G.col(2) = s - sigma;

@@ -455,6 +455,33 @@ class Solver {
   /// The current Dirichlet mask (#V by Dim), as used by the last step.
   const FixedMask& dirichlet_mask() const { return mask_; }
 
+  /// External forces used by the coming steps (#V by Dim).
+  const VertexMatrix<Dim>& external_forces() const { return f_ext_; }
+  /// Per-element muscle activations a_e (ones when the pack has no fibre term).
+  const VectorX& activations() const { return activation_; }
+  /// The parameters each element's local step reads (after routing).
+  const std::vector<ElementParams>& element_params() const { return params_; }
+  /// The ProxMeans each element's stretch prox reads (the mesh-wide means, or the element's own
+  /// values under PerElementProx routing).
+  const std::vector<ProxMeans>& element_means() const { return means_; }
+  /// The iterate before the last one of the last step (q^{*-1} of Algorithm 1 line 34; the
+  /// converged state is positions()). Empty before the first step.
+  const Vector& last_previous_iterate() const { return last_iterate_prev_; }
+
+  /// Sets the Dirichlet mask for a step starting at the current time() and refactors A when
+  /// something changed since the last factorization (what step() does first). The backward pass
+  /// calls it to restore the system a step used.
+  void prepare_step() { prepare_system(); }
+
+  /// out = sum_e V_e G_e^T vec(f(e, G_e x)) for a flat #V * Dim vector x (f returns a Dim x Dim
+  /// matrix): element-parallel, then a deterministic vertex gather. Returns false when some
+  /// f(e, .) is not finite (those elements contribute zero). The forward local step and the
+  /// backward pass's element operators use it.
+  template <class F>
+  bool element_scatter(const Vector& x, Vector& out, F&& f) {
+    return scatter(x, out, std::forward<F>(f));
+  }
+
   /// 1/2 sum_v m_v |v_v|^2.
   double kinetic_energy() const {
     double e = 0;
