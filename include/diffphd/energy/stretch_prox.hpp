@@ -91,7 +91,10 @@ struct StretchProxTerm : detail::SvdTerm<StretchProxTerm<Policy, Routing>> {
     sym_eig<S, Dim>(prox_hessian<S, Dim>(s, p, means), kappa, Q);
     return kappa;
   }
-  /// The trust-region blend of eq. (24): (1 - tau) H + tau |H|, |H| = Q |kappa| Q^T.
+  /// The trust-region blend of eq. (24): (1 - tau) H + tau |H|, |H| = Q |kappa| Q^T. For
+  /// tau > 0 the blended eigenvalues are floored at 1e-6 k (tau = 1/2 maps a negative eigenvalue
+  /// to exactly 0, whose inverse the differential needs): the filtered ds*/dsigma_F = k H~^-1 is
+  /// then bounded by 1e6 in that direction instead of infinite.
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> filtered_prox_hessian(
       const Eigen::Matrix<S, Dim, 1>& s, const ElementParams& p, const ProxMeans& means, S tau) {
@@ -100,8 +103,11 @@ struct StretchProxTerm : detail::SvdTerm<StretchProxTerm<Policy, Routing>> {
     Eigen::Matrix<S, Dim, Dim> Q;
     sym_eig<S, Dim>(H, kappa, Q);
     Eigen::Matrix<S, Dim, 1> filtered;
-    for (int i = 0; i < Dim; ++i)
+    const S floor = tau > S(0) ? S(1e-6 * prox_params(p, means).k) : S(0);
+    for (int i = 0; i < Dim; ++i) {
       filtered(i) = (S(1) - tau) * kappa(i) + tau * detail::SmallMath<S>::abs(kappa(i));
+      if (tau > S(0) && filtered(i) < floor) filtered(i) = floor;
+    }
     return Q * filtered.asDiagonal() * Q.transpose();
   }
 
