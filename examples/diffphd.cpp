@@ -4,7 +4,10 @@
 //   diffphd mesh-info FILE [--json]
 //   diffphd run SCENE.json [--out DIR] [--frames N] [--contrast C] [--anderson M] [--json] ...
 //
-// Later issues add bench, optimize and gradcheck.
+//   diffphd bench SCENE --out DIR ...
+//   diffphd optimize TASK.json [--json] [--out DIR]
+//   diffphd gradcheck SCENE.json --param KIND [--frames N] [--json]
+//   diffphd bench-backward SCENE.json [--filters ...] [--out DIR]
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -23,6 +26,7 @@
 #include <diffphd/io/vtk.hpp>
 #include <diffphd/io/scene.hpp>
 
+#include "adjoint_cli.hpp"
 #include "bench.hpp"
 #include "scene_run.hpp"
 
@@ -82,6 +86,40 @@ int cmd_run(const std::string& scene_path, std::optional<double> contrast,
     if (j.contains("error")) std::cout << "  stopped: " << j["error"].get<std::string>() << "\n";
   }
   return j["status"] == "ok" ? 0 : 3;
+}
+
+int cmd_optimize(const std::string& task_path, std::optional<int> max_evals,
+                 const std::string& out_dir, bool as_json, bool quiet) {
+  diffphd::optim::TaskSpec task = diffphd::optim::load_task(task_path);
+  if (max_evals) task.max_evaluations = *max_evals;
+  if (!quiet)
+    std::cerr << "optimize " << task.name << ": " << task.parameters.size() << " parameter(s), "
+              << task.frames << " frames, at most " << task.max_evaluations << " evaluations\n";
+  const json j = diffphd::cli::optimize_dispatch(task, !quiet);
+  if (!out_dir.empty()) {
+    fs::create_directories(out_dir);
+    std::ofstream(fs::path(out_dir) / (task.name + ".json")) << j.dump(2) << "\n";
+  }
+  if (as_json) {
+    json slim = j;
+    slim.erase("history");
+    std::cout << slim.dump() << "\n";
+  } else {
+    std::cout << "optimize " << task.name << ": loss " << j["initial_loss"].get<double>() << " -> "
+              << j["final_loss"].get<double>() << " in " << j["evaluations"] << " evaluations ("
+              << j["stop_reason"].get<std::string>() << "), forward "
+              << j["seconds_forward"].get<double>() << " s, backward "
+              << j["seconds_backward"].get<double>() << " s\n";
+    for (auto it = j["parameters"].begin(); it != j["parameters"].end(); ++it) {
+      std::cout << "  " << it.key() << ": " << it.value()["initial"].get<double>() << " -> "
+                << it.value()["final"].get<double>();
+      if (it.value().contains("truth"))
+        std::cout << " (truth " << it.value()["truth"].get<double>() << ", rel error "
+                  << it.value()["rel_error"].get<double>() << ")";
+      std::cout << "\n";
+    }
+  }
+  return 0;
 }
 
 }  // namespace
@@ -156,8 +194,153 @@ int main(int argc, char** argv) {
   bench->add_flag("--no-progress", bench_no_progress, "No progress bar");
   bench->add_option("--out", bench_opt.out_dir, "Output directory (results.csv)")->required();
 
+  // ---- backward pass: optimize, gradcheck, bench-backward ----
+  std::string task_path, opt_out;
+  std::optional<int> opt_max_evals;
+  bool opt_json = false, opt_quiet = false;
+  auto* optimize = app.add_subcommand(
+      "optimize",
+      "Solve an inverse problem (task file: scene, parameters, loss; docs/optimize.md)");
+  optimize->add_option("TASK", task_path, "Task file (JSON)")->required();
+  optimize->add_option("--max-evaluations", opt_max_evals, "Override the task's evaluation budget")
+      ->check(CLI::PositiveNumber);
+  optimize->add_option("--out", opt_out,
+                       "Write DIR/<task>.json (result and per-evaluation history)");
+  optimize->add_flag("--json", opt_json, "Print the result as one JSON object on stdout");
+  optimize->add_flag("--quiet", opt_quiet, "No per-evaluation progress on stderr");
+
+  std::string gc_scene, gc_filter = "trust-region";
+  diffphd::cli::GradcheckArgs gc;
+  std::optional<double> gc_contrast;
+  double gc_tolerance = 1e-5;
+  bool gc_json = false;
+  auto* gradcheck = app.add_subcommand(
+      "gradcheck",
+      "Compare the adjoint gradient of a scene rollout with central finite differences");
+  gradcheck->add_option("SCENE", gc_scene, "Scene file (JSON)")->required();
+  gradcheck
+      ->add_option("--param", gc.param,
+                   "q0 | v0 | forces | activation | activation_constant | youngs_modulus | "
+                   "poisson_ratio | alpha | beta0")
+      ->required();
+  gradcheck->add_option("--frames", gc.frames, "Frames of the rollout (default 5)")
+      ->check(CLI::PositiveNumber);
+  gradcheck->add_option("--directions", gc.directions, "Random directions (default 3)")
+      ->check(CLI::PositiveNumber);
+  gradcheck->add_option("--filter", gc_filter, "none | clamp | abs | trust-region")
+      ->check(CLI::IsMember({"none", "clamp", "abs", "trust-region"}));
+  gradcheck->add_option("--eps-rel", gc.eps_rel, "Forward tolerance (default 1e-10)")
+      ->check(CLI::PositiveNumber);
+  gradcheck->add_option("--contrast", gc_contrast, "Stiffness factor of the contrast regions")
+      ->check(CLI::PositiveNumber);
+  gradcheck
+      ->add_option("--tolerance", gc_tolerance,
+                   "Exit status 1 when max_rel_err exceeds it (default 1e-5)")
+      ->check(CLI::PositiveNumber);
+  gradcheck->add_flag("--json", gc_json, "Print one JSON object on stdout");
+
+  std::string bb_scene, bb_out, bb_filters = "none,clamp,abs,trust-region", bb_methods = "gmres";
+  diffphd::cli::BenchBackwardArgs bb;
+  std::optional<double> bb_eps, bb_contrast;
+  bool bb_json = false, bb_no_progress = false;
+  auto* bench_bw = app.add_subcommand(
+      "bench-backward", "Forward and backward time per step for each filter and adjoint method");
+  bench_bw->add_option("SCENE", bb_scene, "Scene file (JSON)")->required();
+  bench_bw->add_option("--frames", bb.frames, "Frames (default 10)")->check(CLI::PositiveNumber);
+  bench_bw->add_option("--filters", bb_filters, "Comma list (default none,clamp,abs,trust-region)");
+  bench_bw->add_option("--methods", bb_methods, "Comma list of gmres, fixed-point (default gmres)");
+  bench_bw->add_option("--eps-rel", bb_eps, "Forward tolerance (default: the scene's)")
+      ->check(CLI::PositiveNumber);
+  bench_bw->add_option("--adjoint-tolerance", bb.tolerance, "Adjoint tolerance (default 1e-8)")
+      ->check(CLI::PositiveNumber);
+  bench_bw->add_option("--checkpoint-every", bb.checkpoint_every, "0 = keep every step (default)")
+      ->check(CLI::NonNegativeNumber);
+  bench_bw->add_option("--contrast", bb_contrast, "Stiffness factor of the contrast regions")
+      ->check(CLI::PositiveNumber);
+  bench_bw->add_option("--out", bb_out, "Write DIR/backward.csv");
+  bench_bw->add_flag("--json", bb_json, "Print the rows as JSON on stdout");
+  bench_bw->add_flag("--no-progress", bb_no_progress, "No progress lines");
+
   CLI11_PARSE(app, argc, argv);
+  auto parse_filter = [](const std::string& f) {
+    for (diffphd::FilterKind k : {diffphd::FilterKind::None, diffphd::FilterKind::Clamp,
+                                  diffphd::FilterKind::Abs, diffphd::FilterKind::TrustRegion})
+      if (f == diffphd::to_string(k)) return k;
+    throw diffphd::InputError("unknown filter \"" + f + "\" (none, clamp, abs, trust-region)");
+  };
   try {
+    if (*optimize) return cmd_optimize(task_path, opt_max_evals, opt_out, opt_json, opt_quiet);
+    if (*gradcheck) {
+      gc.filter = parse_filter(gc_filter);
+      const diffphd::io::SceneSpec scene = diffphd::io::load_scene(gc_scene, gc_contrast);
+      const json j = diffphd::cli::gradcheck_dispatch(scene, gc);
+      if (gc_json) {
+        std::cout << j.dump() << "\n";
+      } else {
+        std::cout << "gradcheck " << gc.param << " on " << gc_scene << " (" << gc.frames
+                  << " frames): " << j["checked"] << " directions, max rel err "
+                  << j["max_rel_err"].get<double>() << ", descent "
+                  << (j["descent_ok"].get<bool>() ? "ok" : "FAILED") << "\n";
+      }
+      return j["max_rel_err"].get<double>() <= gc_tolerance && j["descent_ok"].get<bool>() ? 0 : 1;
+    }
+    if (*bench_bw) {
+      auto split = [](const std::string& csv) {
+        std::vector<std::string> out;
+        std::stringstream ss(csv);
+        std::string item;
+        while (std::getline(ss, item, ','))
+          if (!item.empty()) out.push_back(item);
+        return out;
+      };
+      for (const auto& f : split(bb_filters)) bb.filters.push_back(parse_filter(f));
+      for (const auto& m : split(bb_methods)) {
+        if (m == "gmres")
+          bb.methods.push_back(diffphd::AdjointMethod::Gmres);
+        else if (m == "fixed-point")
+          bb.methods.push_back(diffphd::AdjointMethod::FixedPoint);
+        else
+          throw diffphd::InputError("--methods: unknown method \"" + m + "\" (gmres, fixed-point)");
+      }
+      if (bb.filters.empty() || bb.methods.empty())
+        throw diffphd::InputError("--filters and --methods need at least one entry");
+      bb.over.eps_rel = bb_eps;
+      bb.progress = !bb_no_progress && !bb_json;
+      const diffphd::io::SceneSpec scene = diffphd::io::load_scene(bb_scene, bb_contrast);
+      const json rows = diffphd::cli::bench_backward_dispatch(scene, bb);
+      if (!bb_out.empty()) {
+        fs::create_directories(bb_out);
+        std::ofstream csv(fs::path(bb_out) / "backward.csv");
+        csv << "scene,filter,method,steps,forward_ms_per_step,backward_ms_per_step,"
+               "backward_over_forward,mean_forward_iterations,mean_adjoint_iterations,"
+               "max_adjoint_iterations,max_adjoint_residual,unconverged_adjoints,"
+               "unconverged_forward,indefinite_element_steps,tau_0,tau_half,tau_1,cache_"
+               "megabytes\n";
+        for (const auto& r : rows)
+          csv << r["scene"].get<std::string>() << "," << r["filter"].get<std::string>() << ","
+              << r["method"].get<std::string>() << "," << r["steps"] << ","
+              << r["forward_ms_per_step"] << "," << r["backward_ms_per_step"] << ","
+              << r["backward_over_forward"] << "," << r["mean_forward_iterations"] << ","
+              << r["mean_adjoint_iterations"] << "," << r["max_adjoint_iterations"] << ","
+              << r["max_adjoint_residual"] << "," << r["unconverged_adjoints"] << ","
+              << r["unconverged_forward"] << "," << r["indefinite_element_steps"] << ","
+              << r["tau_counts"]["0"] << "," << r["tau_counts"]["0.5"] << ","
+              << r["tau_counts"]["1"] << "," << r["cache_megabytes"] << "\n";
+      }
+      if (bb_json) {
+        std::cout << rows.dump() << "\n";
+      } else {
+        for (const auto& r : rows)
+          std::cout << r["scene"].get<std::string>() << " " << r["filter"].get<std::string>() << " "
+                    << r["method"].get<std::string>() << ": forward "
+                    << r["forward_ms_per_step"].get<double>() << " ms/step, backward "
+                    << r["backward_ms_per_step"].get<double>() << " ms/step (ratio "
+                    << r["backward_over_forward"].get<double>() << "), adjoint iterations mean "
+                    << r["mean_adjoint_iterations"].get<double>() << " max "
+                    << r["max_adjoint_iterations"] << "\n";
+      }
+      return 0;
+    }
     if (*info) return cmd_mesh_info(mesh_path, json_out);
     if (*bench) {
       auto split = [](const std::string& csv, const char* what) {

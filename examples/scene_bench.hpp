@@ -120,6 +120,7 @@ DIFFPHD_CLI_DECLARE_BENCH(diffphd::Energies<diffphd::Corotated, diffphd::Volume>
 DIFFPHD_CLI_DECLARE_BENCH(diffphd::Corotated)
 DIFFPHD_CLI_DECLARE_BENCH(diffphd::NeoHookeanProx)
 DIFFPHD_CLI_DECLARE_BENCH(diffphd::Energies<diffphd::NeoHookeanProx, diffphd::LogVolume>)
+DIFFPHD_CLI_DECLARE_BENCH(diffphd::Energies<diffphd::Corotated, diffphd::Volume, diffphd::Muscle>)
 extern template diffphd::cli::BenchRun diffphd::cli::bench_newton<2>(const diffphd::io::SceneSpec&,
                                                                      const diffphd::NewtonOptions&,
                                                                      int);

@@ -15,6 +15,8 @@ static nlohmann::json run_dim(const io::SceneSpec& scene, const RunOptions& opt)
       return run_scene<Dim, NeoHookeanProx>(scene, opt);
     case io::EnergyKind::NeoHookeanLogVolume:
       return run_scene<Dim, Energies<NeoHookeanProx, LogVolume>>(scene, opt);
+    case io::EnergyKind::CorotatedVolumeMuscle:
+      return run_scene<Dim, Energies<Corotated, Volume, Muscle>>(scene, opt);
   }
   throw InputError(scene.file + ": unknown energy");
 }
@@ -34,6 +36,8 @@ static BenchRun bench_dim(const io::SceneSpec& scene, const SceneOverrides& over
       return bench_pd<Dim, NeoHookeanProx>(scene, over, frames);
     case io::EnergyKind::NeoHookeanLogVolume:
       return bench_pd<Dim, Energies<NeoHookeanProx, LogVolume>>(scene, over, frames);
+    case io::EnergyKind::CorotatedVolumeMuscle:
+      return bench_pd<Dim, Energies<Corotated, Volume, Muscle>>(scene, over, frames);
   }
   throw InputError(scene.file + ": unknown energy");
 }

@@ -179,7 +179,7 @@ TEST_CASE("shipped scene: plant_swing", "[scene][plant]") {
 
 TEST_CASE("every shipped scene loads", "[scene]") {
   for (const char* name : {"demo", "cantilever_twist", "cantilever_axial", "armadillo_twist",
-                           "bunny_tumble", "plant_swing"}) {
+                           "bunny_tumble", "plant_swing", "routing_tendon"}) {
     INFO(name);
     const io::SceneSpec s = io::load_scene(kScenes + name + ".json");
     CHECK(s.output.name == name);
@@ -424,4 +424,292 @@ TEST_CASE("scene: every generator builds", "[scene]") {
     }
   }
   fs::remove_all(dir);
+}
+
+// ---- muscles -------------------------------------------------------------------------------
+
+namespace {
+
+/// A small scene (a 1 x 0.2 x 0.2 m box of 5 x 1 x 1 cells, 30 tets) with the given "muscles"
+/// and energy, written to a temporary file. Returns the file's path.
+std::string muscle_scene(const std::string& muscles,
+                         const std::string& energy = "corotated+volume+muscle",
+                         const std::string& name = "muscles") {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / "diffphd_test_scene_muscles";
+  fs::create_directories(dir);
+  const fs::path file = dir / (name + ".json");
+  std::ofstream out(file);
+  out << R"({"mesh": {"generator": "box", "lo": [0, 0, 0], "hi": [1, 0.2, 0.2], "cells": [5, 1, 1]},
+ "material": {"youngs_modulus": 1e5},
+ "fixed": [{"vertices": {"slab": {"axis": 0, "hi": 0.0}}}],
+ "time": {"h": 0.01, "frames": 1},
+ "solver": {"energy": ")"
+      << energy << "\"}" << (muscles.empty() ? "" : ",\n \"muscles\": " + muscles) << "}\n";
+  return file.string();
+}
+
+void remove_muscle_scenes() {
+  std::filesystem::remove_all(std::filesystem::temp_directory_path() /
+                              "diffphd_test_scene_muscles");
+}
+
+}  // namespace
+
+TEST_CASE("scene muscles: a valid section and the per-element muscle field", "[scene][muscle]") {
+  const std::string file = muscle_scene(R"({"stiffness": 2e5, "groups": [
+      {"name": "left", "slab": {"axis": 0, "hi": 0.4}, "fibre": [2, 0, 0]},
+      {"box": {"lo": [0.6, 0, 0], "hi": [1, 0.2, 0.2]}, "fibre": [1, 1, 0], "stiffness": 5e5,
+       "activation": 0.8}]})");
+  const io::SceneSpec s = io::load_scene(file);
+  CHECK(s.solver.energy == io::EnergyKind::CorotatedVolumeMuscle);
+  CHECK(std::string(io::to_string(s.solver.energy)) == "corotated+volume+muscle");
+  REQUIRE(s.muscles.groups.size() == 2);
+  CHECK(s.muscles.stiffness == 2e5);
+  const io::MuscleGroupSpec& a = s.muscles.groups[0];
+  const io::MuscleGroupSpec& b = s.muscles.groups[1];
+  CHECK(a.name == "left");
+  CHECK(b.name == "muscles.groups[1]");  // the JSON path when no name is given
+  CHECK(a.stiffness == 2e5);             // the section's default
+  CHECK(b.stiffness == 5e5);             // the group's override
+  CHECK(a.activation == 1.0);            // default: rest length
+  CHECK(b.activation == 0.8);
+  CHECK((a.fibre - Eigen::Vector3d(1, 0, 0)).norm() < 1e-15);  // normalised
+  CHECK((b.fibre - Eigen::Vector3d(1, 1, 0) / std::sqrt(2.0)).norm() < 1e-15);
+  CHECK(a.elements.kind == io::ElementSelector::Kind::Slab);
+  CHECK(b.elements.kind == io::ElementSelector::Kind::Box);
+
+  const auto m = io::build_mesh_with_regions<3>(s);
+  const io::MuscleField f = io::build_muscles<3>(s, m.mesh, m.region);
+  const Index ne = m.mesh.num_elements();
+  REQUIRE(static_cast<Index>(f.group.size()) == ne);
+  REQUIRE(f.stiffness.size() == ne);
+  REQUIRE(f.fibres.rows() == ne);
+  REQUIRE(f.fibres.cols() == 3);
+  CHECK(f.num_groups() == 2);
+  CHECK(f.names == std::vector<std::string>{"left", "muscles.groups[1]"});
+  CHECK(f.activations == Eigen::Vector2d(1.0, 0.8));
+  int counts[3] = {0, 0, 0};
+  for (Index e = 0; e < ne; ++e) {
+    const double cx = m.mesh.centroid(e)[0];
+    const int expect = cx <= 0.4 ? 0 : cx >= 0.6 ? 1 : -1;
+    INFO("element " << e << " centroid x " << cx);
+    REQUIRE(f.group[e] == expect);
+    ++counts[expect + 1];
+    if (expect == -1) {
+      CHECK(f.stiffness[e] == 0);
+      CHECK(f.fibres.row(e) == Eigen::RowVector3d(1, 0, 0));
+    } else {
+      CHECK(f.stiffness[e] == s.muscles.groups[expect].stiffness);
+      CHECK((f.fibres.row(e).transpose() - s.muscles.groups[expect].fibre).norm() == 0);
+    }
+  }
+  CHECK(counts[0] == 6);   // the middle cell
+  CHECK(counts[1] == 12);  // cells 0 and 1
+  CHECK(counts[2] == 12);  // cells 3 and 4
+  const VectorX act = f.element_activations(Eigen::Vector2d(0.9, 0.7));
+  for (Index e = 0; e < ne; ++e)
+    CHECK(act[e] == (f.group[e] == 0 ? 0.9 : f.group[e] == 1 ? 0.7 : 1.0));
+  CHECK_THROWS_WITH(f.element_activations(VectorX::Ones(3)),
+                    Contains("3 activations for 2 muscle groups"));
+
+  // A scene without "muscles": no group, zero stiffness.
+  const io::SceneSpec plain = io::load_scene(kBad + "good_small.json");
+  CHECK(plain.muscles.empty());
+  const auto pm = io::build_mesh_with_regions<3>(plain);
+  const io::MuscleField none = io::build_muscles<3>(plain, pm.mesh, pm.region);
+  CHECK(none.num_groups() == 0);
+  CHECK(std::count(none.group.begin(), none.group.end(), -1) == pm.mesh.num_elements());
+  CHECK(none.stiffness.isZero(0));
+  remove_muscle_scenes();
+}
+
+TEST_CASE("scene muscles: 2D fibres", "[scene][muscle]") {
+  namespace fs = std::filesystem;
+  const fs::path file = fs::temp_directory_path() / "diffphd_test_scene_muscles_2d.json";
+  {
+    std::ofstream out(file);
+    out << R"({"mesh": {"generator": "rectangle", "lo": [0, 0], "hi": [0.2, 1], "cells": [2, 4]},
+ "material": {"youngs_modulus": 1e5}, "time": {"h": 0.01, "frames": 1},
+ "solver": {"energy": "corotated+volume+muscle"},
+ "muscles": {"stiffness": 1e5, "groups": [
+   {"name": "right", "box": {"lo": [0.1, 0], "hi": [0.2, 1]}, "fibre": [0, 3]}]}})";
+  }
+  const io::SceneSpec s = io::load_scene(file.string());
+  REQUIRE(io::scene_dimension(s) == 2);
+  CHECK((s.muscles.groups[0].fibre - Eigen::Vector2d(0, 1)).norm() == 0);
+  const auto mesh = io::build_mesh<2>(s);
+  const io::MuscleField f = io::build_muscles<2>(s, mesh);
+  CHECK(std::count(f.group.begin(), f.group.end(), 0) == mesh.num_elements() / 2);
+  for (Index e = 0; e < mesh.num_elements(); ++e)
+    if (f.group[e] == 0) CHECK(f.fibres.row(e) == Eigen::RowVector3d(0, 1, 0));
+  const SimplicialMesh<3> cube =
+      make_box(Vec<3>(0, 0, 0), Vec<3>(1, 1, 1), Eigen::Vector3i(1, 1, 1));
+  CHECK_THROWS_WITH(io::build_muscles<3>(s, cube), Contains("the scene is 2D"));
+  fs::remove(file);
+}
+
+TEST_CASE("scene muscles: bad input names the file and the JSON path", "[scene][muscle][errors]") {
+  struct Case {
+    std::string muscles, energy;
+    std::vector<const char*> expect;
+  };
+  const std::string ok_group = R"({"slab": {"axis": 0, "hi": 0.4}, "fibre": [1, 0, 0]})";
+  const std::vector<Case> cases = {
+      // The energy and the section go together.
+      {R"({"stiffness": 1e5, "groups": [)" + ok_group + "]}",
+       "corotated+volume",
+       {"muscles: solver.energy \"corotated+volume\" has no muscle term",
+        "(use \"corotated+volume+muscle\")"}},
+      {"",
+       "corotated+volume+muscle",
+       {"solver.energy: \"corotated+volume+muscle\" needs a \"muscles\" section"}},
+      // The section.
+      {R"([1, 2])", "corotated+volume+muscle", {"muscles: expected an object, found an array"}},
+      {R"({"stiffness": 1e5})",
+       "corotated+volume+muscle",
+       {"muscles: missing required key \"groups\""}},
+      {R"({"stiffness": 1e5, "groups": []})",
+       "corotated+volume+muscle",
+       {"muscles.groups: the list is empty"}},
+      {R"({"stiffness": -1, "groups": [)" + ok_group + "]}",
+       "corotated+volume+muscle",
+       {"muscles.stiffness: must be > 0, found -1"}},
+      {R"({"stifness": 1e5, "groups": [)" + ok_group + "]}",
+       "corotated+volume+muscle",
+       {"unknown key \"stifness\" in muscles", "(did you mean \"stiffness\"?)"}},
+      // Groups.
+      {R"({"groups": [)" + ok_group + "]}",
+       "corotated+volume+muscle",
+       {"muscles.groups[0]: missing \"stiffness\" (give it here or as muscles.stiffness)"}},
+      {R"({"stiffness": 1e5, "groups": [)" + ok_group +
+           R"(, {"slab": {"axis": 0, "lo": 0.6}, "fibre": [0, 0, 0]}]})",
+       "corotated+volume+muscle",
+       {"muscles.groups[1].fibre: must not be the zero vector"}},
+      {R"({"stiffness": 1e5, "groups": [{"slab": {"axis": 0, "lo": 0.6}, "fibre": [0, 1]}]})",
+       "corotated+volume+muscle",
+       {"muscles.groups[0].fibre: expected 3 numbers"}},
+      {R"({"stiffness": 1e5, "groups": [{"slab": {"axis": 0, "lo": 0.6}}]})",
+       "corotated+volume+muscle",
+       {"muscles.groups[0]: missing required key \"fibre\""}},
+      {R"({"stiffness": 1e5, "groups": [{"fibre": [1, 0, 0]}]})",
+       "corotated+volume+muscle",
+       {"muscles.groups[0]: give one of \"elements\", \"box\", \"slab\", \"mesh_region\""}},
+      {R"({"stiffness": 1e5, "groups": [{"slab": {"axis": 0, "lo": 0.6}, "fibre": [1, 0, 0],
+           "stiffness": 0}]})",
+       "corotated+volume+muscle",
+       {"muscles.groups[0].stiffness: must be > 0, found 0"}},
+      {R"({"stiffness": 1e5, "groups": [{"slab": {"axis": 0, "lo": 0.6}, "fibre": [1, 0, 0],
+           "activation": 0}]})",
+       "corotated+volume+muscle",
+       {"muscles.groups[0].activation: must be > 0, found 0"}},
+      {R"({"stiffness": 1e5, "groups": [{"slab": {"axis": 0, "lo": 0.6}, "fibre": [1, 0, 0],
+           "activation": "full"}]})",
+       "corotated+volume+muscle",
+       {"muscles.groups[0].activation: expected a number, found a string"}},
+      {R"({"stiffness": 1e5, "groups": [{"slab": {"axis": 0, "lo": 0.6}, "fiber": [1, 0, 0]}]})",
+       "corotated+volume+muscle",
+       {"unknown key \"fiber\" in muscles.groups[0]", "(did you mean \"fibre\"?)"}},
+      {R"({"stiffness": 1e5, "groups": [
+           {"name": "a", "slab": {"axis": 0, "hi": 0.4}, "fibre": [1, 0, 0]},
+           {"name": "a", "slab": {"axis": 0, "lo": 0.6}, "fibre": [1, 0, 0]}]})",
+       "corotated+volume+muscle",
+       {"muscles.groups[1].name: muscle group name \"a\" is used twice (also muscles.groups[0])"}},
+      {R"({"stiffness": 1e5, "groups": [{"slab": {"axis": 3, "lo": 0.6}, "fibre": [1, 0, 0]}]})",
+       "corotated+volume+muscle",
+       {"muscles.groups[0].slab.axis: axis must be 0, 1 or 2, found 3"}},
+  };
+  int n = 0;
+  for (const Case& c : cases) {
+    const std::string path = muscle_scene(c.muscles, c.energy, "bad_" + std::to_string(n++));
+    INFO(c.muscles << " with energy " << c.energy);
+    try {
+      io::load_scene(path);
+      FAIL("no InputError");
+    } catch (const InputError& e) {
+      const std::string what = e.what();
+      INFO(what);
+      CHECK(e.file() == path);
+      CHECK(what.rfind(path + ": ", 0) == 0);
+      for (const char* x : c.expect) CHECK_THAT(what, Contains(x));
+    }
+  }
+  remove_muscle_scenes();
+}
+
+TEST_CASE("scene muscles: build-time errors name the groups", "[scene][muscle][errors]") {
+  auto build_error = [](const std::string& muscles) -> std::string {
+    const std::string path = muscle_scene(muscles, "corotated+volume+muscle", "build");
+    const io::SceneSpec s = io::load_scene(path);
+    const auto m = io::build_mesh_with_regions<3>(s);
+    try {
+      io::build_muscles<3>(s, m.mesh, m.region);
+    } catch (const InputError& e) {
+      CHECK(e.file() == path);
+      return e.what();
+    }
+    return "no InputError";
+  };
+  // Two groups sharing elements: both are named.
+  const std::string overlap = build_error(R"({"stiffness": 1e5, "groups": [
+      {"name": "flexor", "slab": {"axis": 0, "hi": 0.6}, "fibre": [1, 0, 0]},
+      {"name": "other", "slab": {"axis": 0, "lo": 0.6}, "fibre": [1, 0, 0]},
+      {"name": "extensor", "slab": {"axis": 0, "lo": 0.4, "hi": 0.6}, "fibre": [1, 0, 0]}]})");
+  CHECK_THAT(overlap, Contains("muscles.groups[2]: muscle group \"extensor\" overlaps group "
+                               "\"flexor\" (muscles.groups[0]) in 6 element(s)"));
+  CHECK_THAT(overlap, Contains("an element belongs to at most one muscle group"));
+  // A group that selects nothing, or an element index out of range.
+  CHECK_THAT(build_error(R"({"stiffness": 1e5, "groups": [
+      {"box": {"lo": [2, 0, 0], "hi": [3, 1, 1]}, "fibre": [1, 0, 0]}]})"),
+             Contains("muscles.groups[0]: selects no element"));
+  CHECK_THAT(build_error(R"({"stiffness": 1e5, "groups": [
+      {"elements": [0, 30], "fibre": [1, 0, 0]}]})"),
+             Contains("muscles.groups[0]: elements[1] = 30 is out of range"));
+  CHECK_THAT(build_error(R"({"stiffness": 1e5, "groups": [
+      {"mesh_region": 4, "fibre": [1, 0, 0]}]})"),
+             Contains("muscles.groups[0]: mesh_region: no element has region id 4"));
+  remove_muscle_scenes();
+}
+
+TEST_CASE("shipped scene: routing_tendon", "[scene][muscle]") {
+  const Built b = build3(kScenes + "routing_tendon.json");
+  const io::SceneSpec& s = b.scene;
+  const SimplicialMesh<3>& mesh = b.mesh.mesh;
+  CHECK(mesh.num_elements() == 1920);
+  CHECK(mesh.num_vertices() == 525);
+  CHECK(s.solver.energy == io::EnergyKind::CorotatedVolumeMuscle);
+  CHECK(s.gravity.isZero(0));
+  CHECK(s.output.frames == 100);
+  // The base (y = 0) is clamped: its 5 x 5 vertices.
+  CHECK(io::fixed_mask<3>(s, mesh).count() == 3 * 25);
+  for (Index v : io::select_vertices(s.fixed[0].vertices, mesh))
+    CHECK(mesh.rest_positions()(v, 1) == 0.0);
+  // 16 groups tile the beam: 4 slabs x 4 quadrants, 120 tets each; straight fibres (+y) in slabs
+  // 0 and 2, helical ones (45 degrees, tangential part y x r) in slabs 1 and 3.
+  REQUIRE(s.muscles.groups.size() == 16);
+  const io::MuscleField f = io::build_muscles<3>(s, mesh, b.mesh.region);
+  CHECK(std::count(f.group.begin(), f.group.end(), -1) == 0);
+  CHECK(f.activations == VectorX::Ones(16));
+  std::vector<int> size(16, 0);
+  for (Index e = 0; e < mesh.num_elements(); ++e) {
+    const int g = f.group[e];
+    ++size[g];
+    const Eigen::Vector3d c = mesh.centroid(e);
+    const int slab = static_cast<int>(c[1] / 0.125);
+    const Eigen::Vector3d m = f.fibres.row(e).transpose();
+    INFO("element " << e << " group " << s.muscles.groups[g].name);
+    CHECK(s.muscles.groups[g].stiffness == 1e6);
+    CHECK(std::abs(m.norm() - 1) < 1e-12);
+    if (slab % 2 == 0) {
+      CHECK(m == Eigen::Vector3d(0, 1, 0));
+    } else {
+      // Helical: 45 degrees from the axis, the horizontal part tangential (normal to the
+      // element's position about the axis, the same sense of turn in every quadrant).
+      CHECK(m[1] == Approx(std::sqrt(0.5)));
+      const Eigen::Vector3d r(c[0], 0, c[2]);
+      const Eigen::Vector3d t = Eigen::Vector3d::UnitY().cross(r.normalized());
+      CHECK(Eigen::Vector3d(m[0], 0, m[2]).normalized().dot(t) > 0.7);
+    }
+  }
+  for (int g = 0; g < 16; ++g) CHECK(size[g] == 120);
 }

@@ -1,10 +1,15 @@
 // The shipped scenes run end to end through SceneSimulation (what `diffphd run` steps), each
 // checked against a closed-form answer or an invariant: the bunny's free fall, the axial
-// cantilever's static elongation, the plant's damped swing. Plus the scene -> solver mapping.
+// cantilever's static elongation, the plant's damped swing, the routing tendon's bending and
+// twisting under muscle activation. Plus the scene -> solver mapping and the runner's
+// rollout hooks (prepare_step, restart, scene_forces).
 #include <catch2/catch.hpp>
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -203,4 +208,232 @@ TEST_CASE("NewtonSceneSimulation: a scene with stiffness damping is refused", "[
   io::SceneSpec s = io::load_scene(kData + "good_small.json");
   s.solver.beta0 = 1.0;
   CHECK_THROWS_WITH(NewtonSceneSimulation<3>(s), Contains("beta0"));
+}
+
+// ---- muscles: routing_tendon ----------------------------------------------------------------
+
+namespace {
+
+using MuscleEnergy = Energies<Corotated, Volume, Muscle>;
+
+/// The motion of routing_tendon's top face (y = 0.5 m) at the end of a run: mean displacement,
+/// and the mean rotation about the vertical axis through the face's centroid (rad, right-handed
+/// about +y).
+struct TopFace {
+  Vec<3> displacement = Vec<3>::Zero();
+  double twist = 0;
+  double max_rest_drift = 0;  ///< max over steps and vertices of |x - X| (m)
+  double min_det = 1e300;
+};
+
+/// Runs the whole scene with activation(group) per group; every step must converge.
+TopFace run_tendon(const io::SceneSpec& scene,
+                   const std::function<double(const io::MuscleGroupSpec&)>& activation) {
+  SceneSimulation<3, MuscleEnergy> run(scene);
+  VectorX a(run.num_muscle_groups());
+  for (int g = 0; g < a.size(); ++g) a[g] = activation(scene.muscles.groups[g]);
+  run.set_group_activations(a);
+  const auto& X = run.mesh().rest_positions();
+  std::vector<Index> top;
+  for (Index v = 0; v < X.rows(); ++v)
+    if (X(v, 1) > 0.5 - 1e-9) top.push_back(v);
+  REQUIRE(top.size() == 25);
+  TopFace out;
+  const int steps = scene.output.frames * scene.output.substeps;
+  for (int n = 1; n <= steps; ++n) {
+    const StepReport r = run.step();
+    INFO("step " << n << ": " << r.message);
+    REQUIRE(r.converged);
+    out.max_rest_drift =
+        std::max(out.max_rest_drift, (run.solver().positions() - X).rowwise().norm().maxCoeff());
+    out.min_det = std::min(out.min_det, run.solver().min_jacobian());
+  }
+  const auto& x = run.solver().positions();
+  Vec<3> c0 = Vec<3>::Zero(), c1 = Vec<3>::Zero();
+  for (Index v : top) c0 += X.row(v).transpose(), c1 += x.row(v).transpose();
+  c0 /= top.size();
+  c1 /= top.size();
+  out.displacement = c1 - c0;
+  for (Index v : top) {
+    Vec<3> r = X.row(v).transpose() - c0, d = x.row(v).transpose() - c1;
+    r[1] = d[1] = 0;
+    if (r.norm() > 1e-9) out.twist += std::atan2(r.cross(d)[1], r.dot(d));
+  }
+  out.twist /= static_cast<double>(top.size() - 1);  // the centre vertex has r = 0
+  return out;
+}
+
+bool straight(const io::MuscleGroupSpec& g) {
+  return g.fibre.isApprox(Vec<3>(0, 1, 0));
+}
+bool on_plus_x(const io::MuscleGroupSpec& g) {
+  return g.elements.box.lo[0] >= 0;
+}
+
+}  // namespace
+
+TEST_CASE(
+    "shipped routing_tendon: at rest activations the beam stays put; contracting one "
+    "side's straight fibres bends it towards that side, symmetrically",
+    "[scene][physics][muscle]") {
+  const io::SceneSpec scene = io::load_scene(kScenes + "routing_tendon.json");
+  REQUIRE(scene.gravity.isZero(0));
+  REQUIRE(scene.muscles.groups.size() == 16);
+  // Activation 1 is the rest length: the rest state is a fixed point of every step.
+  const TopFace rest = run_tendon(scene, [](const io::MuscleGroupSpec& g) { return g.activation; });
+  CHECK(rest.max_rest_drift < 1e-6);
+  // 0.9 on the straight groups of one side (slabs 0 and 2): that side shortens, the beam bends
+  // towards it (and shortens a little); the other side is the mirror image up to the mesh's
+  // Kuhn split, which is not mirror symmetric.
+  const TopFace plus = run_tendon(
+      scene, [](const io::MuscleGroupSpec& g) { return straight(g) && on_plus_x(g) ? 0.9 : 1.0; });
+  const TopFace minus = run_tendon(
+      scene, [](const io::MuscleGroupSpec& g) { return straight(g) && !on_plus_x(g) ? 0.9 : 1.0; });
+  WARN("routing_tendon: tip (+x side contracted) "
+       << plus.displacement.transpose() << " m, (-x side) " << minus.displacement.transpose()
+       << " m; min det F " << plus.min_det << ", " << minus.min_det);
+  CHECK(plus.displacement[0] > 0.02);
+  CHECK(minus.displacement[0] < -0.02);
+  CHECK(std::abs(plus.displacement[0] + minus.displacement[0]) < 0.05 * plus.displacement[0]);
+  CHECK(std::abs(plus.displacement[2]) < 0.2 * plus.displacement[0]);
+  CHECK(plus.displacement[1] < 0);
+  CHECK(minus.displacement[1] < 0);
+  CHECK(plus.min_det > 0);
+  CHECK(minus.min_det > 0);
+}
+
+TEST_CASE(
+    "shipped routing_tendon: the helical layout twists the beam, the straight one "
+    "shortens it without twisting",
+    "[scene][physics][muscle]") {
+  const io::SceneSpec scene = io::load_scene(kScenes + "routing_tendon.json");
+  // Helical fibres m = (y + t) / sqrt 2 with t = y x r (the sense of positive rotation about
+  // +y): a contracting fibre pulls its upper end back along -t, so the top face turns by a
+  // negative angle about +y.
+  const TopFace helical =
+      run_tendon(scene, [](const io::MuscleGroupSpec& g) { return straight(g) ? 1.0 : 0.9; });
+  const TopFace axial =
+      run_tendon(scene, [](const io::MuscleGroupSpec& g) { return straight(g) ? 0.9 : 1.0; });
+  WARN("routing_tendon: helical groups at 0.9: twist "
+       << helical.twist << " rad, tip " << helical.displacement.transpose()
+       << " m; straight groups at 0.9: twist " << axial.twist << " rad, tip "
+       << axial.displacement.transpose() << " m");
+  CHECK(helical.twist < -0.1);
+  CHECK(std::abs(axial.twist) < 0.01);
+  CHECK(axial.displacement[1] < -0.005);
+  CHECK(Vec<2>(axial.displacement[0], axial.displacement[2]).norm() < 2e-3);
+  CHECK(Vec<2>(helical.displacement[0], helical.displacement[2]).norm() < 1e-2);
+}
+
+TEST_CASE("SceneRunner: muscle accessors and the energy / solver checks", "[scene][muscle]") {
+  STATIC_REQUIRE(scene_energy_kind<MuscleEnergy>() == io::EnergyKind::CorotatedVolumeMuscle);
+  STATIC_REQUIRE(SceneRunner<3, Solver<3, MuscleEnergy>>::kHasMuscles);
+  STATIC_REQUIRE(!SceneRunner<3, Solver<3, Energies<Corotated, Volume>>>::kHasMuscles);
+  STATIC_REQUIRE(!SceneRunner<3, NewtonSolver<3>>::kHasMuscles);
+  const io::SceneSpec scene = io::load_scene(kScenes + "routing_tendon.json");
+  SceneSimulation<3, MuscleEnergy> run(scene);
+  CHECK(run.num_muscle_groups() == 16);
+  REQUIRE(run.muscle_groups().size() == 1920);
+  CHECK(std::count(run.muscle_groups().begin(), run.muscle_groups().end(), 5) == 120);
+  CHECK(run.group_activations() == VectorX::Ones(16));
+  CHECK(run.muscles().names[5] == scene.muscles.groups[5].name);
+  CHECK_THROWS_WITH(run.set_group_activations(VectorX::Ones(15)),
+                    Contains("15 activations for 16 muscle groups"));
+  VectorX bad = VectorX::Ones(16);
+  bad[3] = std::nan("");
+  CHECK_THROWS_WITH(run.set_group_activations(bad), Contains("non-finite"));
+  CHECK(run.group_activations() == VectorX::Ones(16));  // unchanged after a failure
+
+  // The Newton reference has no muscle term; neither has a PD energy without Muscle.
+  CHECK_THROWS_WITH(NewtonSceneSimulation<3>(scene),
+                    Contains("routing_tendon.json: muscles: the Newton reference has no muscle "
+                             "term"));
+  CHECK_THROWS_WITH((SceneSimulation<3, Energies<Corotated, Volume>>(scene)),
+                    Contains("solver.energy is \"corotated+volume+muscle\""));
+  CHECK_THROWS_WITH((SceneSimulation<3, Energies<Volume, Corotated>>(scene)),
+                    Contains("routing_tendon.json: the scene has \"muscles\" but the solver has "
+                             "no muscle (fibre) term"));
+  // A scene without muscles on a solver with the muscle term: no group (all stiffness 0).
+  const io::SceneSpec small = io::load_scene(kData + "good_small.json");
+  SceneRunner<3, Solver<3, MuscleEnergy>> plain(small, scene_solver_options(small, 3));
+  CHECK(plain.num_muscle_groups() == 0);
+  CHECK(std::count(plain.muscle_groups().begin(), plain.muscle_groups().end(), -1) ==
+        plain.mesh().num_elements());
+}
+
+TEST_CASE("SceneRunner: prepare_step + the solver's step is step(); restart replays a run",
+          "[scene][solver]") {
+  // cantilever_twist: a driver from t = 0 (added by the first prepare_step) and no forces;
+  // cantilever_axial: a force from t = 0.
+  for (const char* name : {"cantilever_twist", "cantilever_axial"}) {
+    INFO(name);
+    const io::SceneSpec scene = io::load_scene(kScenes + name + ".json");
+    SceneSimulation<3, Energies<Corotated, Volume>> a(scene), b(scene);
+    std::vector<VertexMatrix<3>> first;
+    for (int n = 0; n < 5; ++n) {
+      a.step();
+      b.prepare_step();
+      b.solver().step();
+      first.push_back(a.solver().positions());
+      REQUIRE((a.solver().positions() - b.solver().positions()).norm() == 0.0);
+    }
+    CHECK(a.solver().time() == Approx(5 * scene.h));
+    CHECK((a.solver().positions() - a.mesh().rest_positions()).norm() > 1e-6);
+    a.restart();
+    CHECK(a.solver().time() == 0.0);
+    CHECK(a.solver().positions() == a.mesh().rest_positions());
+    CHECK(a.solver().velocities() == a.initial_velocities());
+    for (int n = 0; n < 5; ++n) {
+      a.step();
+      CHECK((a.solver().positions() - first[n]).norm() <= 1e-12 * first[n].norm());
+    }
+  }
+  // scene_forces: the axial load is 100 N along +x in total, from t = 0 on.
+  SceneSimulation<3, Energies<Corotated, Volume>> axial(
+      io::load_scene(kScenes + "cantilever_axial.json"));
+  const VertexMatrix<3> f = axial.scene_forces(0.0);
+  CHECK(f.rows() == axial.mesh().num_vertices());
+  CHECK((f.colwise().sum().transpose() - Vec<3>(100, 0, 0)).norm() < 1e-9);
+  CHECK((f.rowwise().norm().array() > 0).count() == 16);
+  // plant_swing's push stops at 0.25 s.
+  const io::SceneSpec plant = io::load_scene(kScenes + "plant_swing.json");
+  REQUIRE(plant.forces.size() == 1);
+  SceneRunner<3, Solver<3, Corotated>> plant_run(plant, scene_solver_options(plant, 3));
+  CHECK(plant_run.scene_forces(0.1).norm() > 0);
+  CHECK(plant_run.scene_forces(0.25).norm() == 0);
+}
+
+TEST_CASE("2D muscles: a contracted side bends a clamped strip towards it", "[scene][muscle]") {
+  namespace fs = std::filesystem;
+  const fs::path file = fs::temp_directory_path() / "diffphd_test_muscle_strip_2d.json";
+  auto strip = [&](const char* side_lo, const char* side_hi) {
+    std::ofstream out(file);
+    out << R"({"mesh": {"generator": "rectangle", "lo": [-0.05, 0], "hi": [0.05, 0.5],
+                        "cells": [4, 20]},
+ "material": {"youngs_modulus": 1e6, "poisson_ratio": 0.4},
+ "fixed": [{"vertices": {"slab": {"axis": 1, "hi": 0.0}}}],
+ "time": {"h": 0.016666666666666666, "frames": 40},
+ "solver": {"energy": "corotated+volume+muscle", "damping": {"alpha": 20}},
+ "muscles": {"stiffness": 1e6, "groups": [
+   {"box": {"lo": [)"
+        << side_lo << R"(, 0], "hi": [)" << side_hi
+        << R"(, 0.5]}, "fibre": [0, 1], "activation": 0.9}]}})";
+    out.close();
+    const io::SceneSpec scene = io::load_scene(file.string());
+    SceneSimulation<2, MuscleEnergy> run(scene);
+    CHECK(run.num_muscle_groups() == 1);
+    for (int n = 0; n < scene.output.frames; ++n)
+      REQUIRE(run.step().status != StepStatus::NonFinite);
+    double tip = 0;
+    int count = 0;
+    for (Index v = 0; v < run.mesh().num_vertices(); ++v)
+      if (run.mesh().rest_positions()(v, 1) > 0.5 - 1e-9)
+        tip += run.solver().positions()(v, 0) - run.mesh().rest_positions()(v, 0), ++count;
+    return tip / count;
+  };
+  const double right = strip("0", "0.05"), left = strip("-0.05", "0");
+  WARN("2D strip: tip x " << right << " m (right side contracted), " << left << " m (left)");
+  CHECK(right > 0.01);
+  CHECK(left < -0.01);
+  fs::remove(file);
 }

@@ -1,9 +1,10 @@
 #pragma once
 /// \file scene.hpp
 /// \brief Scene files (JSON) -> a plain, validated SceneSpec, and the builders that turn a
-/// SceneSpec into a mesh, a MaterialField, vertex selections, a Dirichlet mask and initial
-/// velocities. No dependency on the solver: a SceneSpec is data; the solver (or the CLI) reads
-/// it. The schema is documented in docs/scenes.md.
+/// SceneSpec into a mesh, a MaterialField, vertex selections, a Dirichlet mask, initial
+/// velocities and the per-element muscle data (build_muscles). No dependency on the solver: a
+/// SceneSpec is data; the solver (or the CLI) reads it. The schema is documented in
+/// docs/scenes.md.
 ///
 /// Every error in a scene file is an InputError whose what() reads
 /// "SCENE_FILE: JSON.PATH: message", e.g.
@@ -61,8 +62,16 @@ enum class EnergyKind {
   CorotatedVolume,      ///< "corotated+volume": Corotated (w = 2 mu) plus Volume (w = lambda)
   NeoHookean,           ///< "neo-hookean": the Neo-Hookean prox term (Sec. 4.2)
   NeoHookeanLogVolume,  ///< "neo-hookean+logvolume": Neo-Hookean prox plus the log-volume barrier
-  Corotated             ///< "corotated": Corotated only
+  Corotated,            ///< "corotated": Corotated only
+  /// "corotated+volume+muscle": Corotated plus Volume plus the Muscle fibre term (needs a
+  /// "muscles" section)
+  CorotatedVolumeMuscle
 };
+
+/// True when the energy has a muscle (fibre) term, so that a scene with it needs "muscles".
+inline bool has_muscle_term(EnergyKind e) {
+  return e == EnergyKind::CorotatedVolumeMuscle;
+}
 
 /// \brief How per-element stiffness is routed ("routing" in "solver"; paper Sec. 4.2, Fig. 4).
 enum class Routing {
@@ -90,6 +99,8 @@ inline const char* to_string(EnergyKind e) {
       return "neo-hookean+logvolume";
     case EnergyKind::Corotated:
       return "corotated";
+    case EnergyKind::CorotatedVolumeMuscle:
+      return "corotated+volume+muscle";
   }
   return "?";
 }
@@ -175,6 +186,53 @@ struct RegionSpec {
   /// the label given to the elements: i + 1 for regions[i] (the default material has 0).
   Material material;
   std::string json_path;  ///< "regions[i]"
+};
+
+/// \brief A set of mesh elements, chosen the way a region assignment chooses them (by index
+/// list, by centroid in a box or slab, or by the mesh's region id). Used by muscle groups;
+/// select_elements() takes it (and RegionSpec).
+struct ElementSelector {
+  using Kind = RegionSpec::Kind;
+  Kind kind = Kind::Elements;
+  std::vector<Index> elements;  ///< Elements: 0-based element indices
+  BoxSpec box;                  ///< Box (element centroids)
+  SlabSpec slab;                ///< Slab (element centroids)
+  int mesh_region = 0;          ///< MeshRegion: the region id in the mesh
+  std::string json_path;        ///< e.g. "muscles.groups[3]", for error messages
+};
+
+/// The element selection of a region assignment.
+inline ElementSelector element_selector(const RegionSpec& r) {
+  ElementSelector s;
+  s.kind = r.kind;
+  s.elements = r.elements;
+  s.box = r.box;
+  s.slab = r.slab;
+  s.mesh_region = r.mesh_region;
+  s.json_path = r.json_path;
+  return s;
+}
+
+/// \brief One muscle group ("muscles.groups[i]"): the elements it selects get the Muscle term
+/// k/2 (|F m| - a)^2 with the group's stiffness k, fibre m and activation a (energies/muscle.hpp).
+/// Groups must not overlap (checked when built, build_muscles()).
+struct MuscleGroupSpec {
+  std::string name;          ///< unique among the groups; "muscles.groups[i]" when not given
+  ElementSelector elements;  ///< which elements
+  VectorX fibre;             ///< rest-space fibre direction, dimension entries, unit length
+  double stiffness = 0;      ///< k, Pa, > 0 (the group's "stiffness", else muscles.stiffness)
+  double activation = 1.0;   ///< a, target fibre stretch (1 = rest length), finite, > 0
+  std::string json_path;     ///< "muscles.groups[i]"
+};
+
+/// \brief The "muscles" section: fibre actuation of element groups. Needs an energy with a
+/// muscle term ("corotated+volume+muscle"); such an energy needs this section. `groups` is
+/// empty when the scene has no "muscles" section. The contrast factor does not scale muscle
+/// stiffness.
+struct MuscleSpec {
+  double stiffness = 0;                 ///< the file's default k, Pa (0 when not given)
+  std::vector<MuscleGroupSpec> groups;  ///< in file order; the group index is the position here
+  bool empty() const { return groups.empty(); }
 };
 
 /// \brief A Dirichlet condition: the selected vertices stay at their rest position along the
@@ -267,6 +325,7 @@ struct SceneSpec {
   double h = 1.0 / 60.0;  ///< s, the time step of one solver step, > 0
   SolverSpec solver;
   OutputSpec output;
+  MuscleSpec muscles;  ///< empty when the file has no "muscles" section
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -540,6 +599,75 @@ inline VertexSelector parse_selector(const Parser& p, const json& obj, const std
   return s;
 }
 
+/// The element selection of obj (a region or a muscle group at `path`): exactly one of
+/// "elements", "box", "slab", "mesh_region".
+inline ElementSelector parse_element_selector(const Parser& p, const json& obj,
+                                              const std::string& path, int dim) {
+  ElementSelector sel;
+  sel.json_path = path;
+  const std::string k = one_of(p, obj, path, {"elements", "box", "slab", "mesh_region"});
+  if (k == "elements") {
+    sel.kind = ElementSelector::Kind::Elements;
+    sel.elements = parse_indices(p, obj.at(k), child(path, k));
+  } else if (k == "box") {
+    sel.kind = ElementSelector::Kind::Box;
+    sel.box = parse_box(p, obj.at(k), child(path, k), dim);
+  } else if (k == "slab") {
+    sel.kind = ElementSelector::Kind::Slab;
+    sel.slab = parse_slab(p, obj.at(k), child(path, k), dim);
+  } else {
+    sel.kind = ElementSelector::Kind::MeshRegion;
+    sel.mesh_region = static_cast<int>(p.integer(obj.at(k), child(path, k)));
+  }
+  return sel;
+}
+
+/// The "muscles" section (see MuscleSpec); per_axis names the fibre's expected length.
+inline MuscleSpec parse_muscles(const Parser& p, const json& j, int dim, const char* per_axis) {
+  const std::string path = "muscles";
+  p.expect_object(j, path, {"stiffness", "groups"});
+  MuscleSpec m;
+  if (j.contains("stiffness")) {
+    m.stiffness = p.number(j, path, "stiffness");
+    p.positive(m.stiffness, "muscles.stiffness");
+  }
+  const json& gs = p.array(p.required(j, path, "groups"), "muscles.groups");
+  if (gs.empty()) p.fail("muscles.groups", "the list is empty");
+  std::map<std::string, std::string> names;  // name -> JSON path
+  for (size_t i = 0; i < gs.size(); ++i) {
+    const std::string gp = item("muscles.groups", i);
+    const json& g = gs[i];
+    p.expect_object(
+        g, gp,
+        {"name", "elements", "box", "slab", "mesh_region", "fibre", "stiffness", "activation"});
+    MuscleGroupSpec grp;
+    grp.json_path = gp;
+    grp.name = g.contains("name") ? p.string(g.at("name"), child(gp, "name")) : gp;
+    if (grp.name.empty()) p.fail(child(gp, "name"), "must not be empty");
+    const auto [it, inserted] = names.emplace(grp.name, gp);
+    if (!inserted)
+      p.fail(child(gp, "name"),
+             "muscle group name \"" + grp.name + "\" is used twice (also " + it->second + ")");
+    grp.elements = parse_element_selector(p, g, gp, dim);
+    grp.fibre = p.vector(p.required(g, gp, "fibre"), child(gp, "fibre"), dim, per_axis);
+    const double n = grp.fibre.norm();
+    if (!(n > 0)) p.fail(child(gp, "fibre"), "must not be the zero vector");
+    grp.fibre /= n;
+    if (g.contains("stiffness")) {
+      grp.stiffness = p.number(g, gp, "stiffness");
+      p.positive(grp.stiffness, child(gp, "stiffness"));
+    } else if (m.stiffness > 0) {
+      grp.stiffness = m.stiffness;
+    } else {
+      p.fail(gp, "missing \"stiffness\" (give it here or as muscles.stiffness)");
+    }
+    grp.activation = p.number(g, gp, "activation", 1.0);
+    p.positive(grp.activation, child(gp, "activation"));
+    m.groups.push_back(std::move(grp));
+  }
+  return m;
+}
+
 inline void parse_window(const Parser& p, const json& j, const std::string& path, double& start,
                          double& stop) {
   start = p.number(j, path, "start", 0.0);
@@ -734,9 +862,10 @@ inline MeshSpec parse_mesh(const Parser& p, const json& root) {
 }
 
 inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> contrast) {
-  p.expect_object(root, "",
-                  {"name", "description", "mesh", "material", "regions", "contrast", "fixed",
-                   "drivers", "gravity", "forces", "initial_velocity", "time", "solver"});
+  p.expect_object(
+      root, "",
+      {"name", "description", "mesh", "material", "regions", "contrast", "fixed", "drivers",
+       "gravity", "forces", "initial_velocity", "time", "solver", "muscles"});
   SceneSpec s;
   s.file = p.file();
   s.output.name = root.contains("name") ? p.string(root.at("name"), "name")
@@ -765,20 +894,12 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
         p.fail(child(path, "name"), "\"default\" names the default material; choose another");
       if (!names.insert(reg.name).second)
         p.fail(child(path, "name"), "region name \"" + reg.name + "\" is used twice");
-      const std::string k = one_of(p, r, path, {"elements", "box", "slab", "mesh_region"});
-      if (k == "elements") {
-        reg.kind = RegionSpec::Kind::Elements;
-        reg.elements = parse_indices(p, r.at(k), child(path, k));
-      } else if (k == "box") {
-        reg.kind = RegionSpec::Kind::Box;
-        reg.box = parse_box(p, r.at(k), child(path, k), dim);
-      } else if (k == "slab") {
-        reg.kind = RegionSpec::Kind::Slab;
-        reg.slab = parse_slab(p, r.at(k), child(path, k), dim);
-      } else {
-        reg.kind = RegionSpec::Kind::MeshRegion;
-        reg.mesh_region = static_cast<int>(p.integer(r.at(k), child(path, k)));
-      }
+      const ElementSelector sel = parse_element_selector(p, r, path, dim);
+      reg.kind = sel.kind;
+      reg.elements = sel.elements;
+      reg.box = sel.box;
+      reg.slab = sel.slab;
+      reg.mesh_region = sel.mesh_region;
       reg.material = s.default_material;
       parse_material(p, p.required(r, path, "material"), child(path, "material"), reg.material,
                      false);
@@ -959,13 +1080,15 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
     if (j.contains("energy")) {
       const std::string e = p.string(j.at("energy"), "solver.energy");
       bool ok = false;
-      for (EnergyKind k : {EnergyKind::CorotatedVolume, EnergyKind::NeoHookean,
-                           EnergyKind::NeoHookeanLogVolume, EnergyKind::Corotated})
+      for (EnergyKind k :
+           {EnergyKind::CorotatedVolume, EnergyKind::NeoHookean, EnergyKind::NeoHookeanLogVolume,
+            EnergyKind::Corotated, EnergyKind::CorotatedVolumeMuscle})
         if (e == to_string(k)) sv.energy = k, ok = true;
       if (!ok)
         p.fail("solver.energy", "unknown energy \"" + e +
                                     "\" (expected \"corotated+volume\", \"neo-hookean\", "
-                                    "\"neo-hookean+logvolume\" or \"corotated\")");
+                                    "\"neo-hookean+logvolume\", \"corotated\" or "
+                                    "\"corotated+volume+muscle\")");
     }
     if (j.contains("routing")) {
       const std::string r = p.string(j.at("routing"), "solver.routing");
@@ -1006,6 +1129,19 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
       sv.beta0 = p.number(d, "solver.damping", "beta0", 0.0);
       p.non_negative(sv.beta0, "solver.damping.beta0");
     }
+  }
+
+  // Muscles (after the solver: the energy must have a muscle term, and the other way round).
+  if (root.contains("muscles")) {
+    s.muscles = parse_muscles(p, root.at("muscles"), dim, per_axis);
+    if (!has_muscle_term(s.solver.energy))
+      p.fail("muscles", std::string("solver.energy \"") + to_string(s.solver.energy) +
+                            "\" has no muscle term (use \"" +
+                            to_string(EnergyKind::CorotatedVolumeMuscle) + "\")");
+  } else if (has_muscle_term(s.solver.energy)) {
+    p.fail("solver.energy", std::string("\"") + to_string(s.solver.energy) +
+                                "\" needs a \"muscles\" section (the muscle groups with their "
+                                "fibres and stiffness)");
   }
   return s;
 }
@@ -1226,12 +1362,12 @@ std::vector<Index> select_vertices(const VertexSelector& sel, const SimplicialMe
   return out;
 }
 
-/// \brief The elements a region assignment picks (by index, centroid in a box or slab, or mesh
-/// region id), sorted.
-/// \param[in] mesh_regions  #E region ids of the mesh (needed for RegionSpec::Kind::MeshRegion)
-/// \throws InputError "SCENE: regions[i]: ..." for out-of-range indices or an empty selection
+/// \brief The elements a selector picks (by index, centroid in a box or slab, or mesh region
+/// id), sorted.
+/// \param[in] mesh_regions  #E region ids of the mesh (needed for Kind::MeshRegion)
+/// \throws InputError "SCENE: JSON.PATH: ..." for out-of-range indices or an empty selection
 template <int Dim>
-std::vector<Index> select_elements(const RegionSpec& r, const SimplicialMesh<Dim>& mesh,
+std::vector<Index> select_elements(const ElementSelector& r, const SimplicialMesh<Dim>& mesh,
                                    const std::vector<int>& mesh_regions,
                                    const std::string& scene_file = {}) {
   auto fail = [&](const std::string& msg) {
@@ -1241,7 +1377,7 @@ std::vector<Index> select_elements(const RegionSpec& r, const SimplicialMesh<Dim
   const auto [bb, tol] = scene_detail::bounds(mesh);
   const Index ne = mesh.num_elements();
   switch (r.kind) {
-    case RegionSpec::Kind::Elements:
+    case ElementSelector::Kind::Elements:
       for (size_t i = 0; i < r.elements.size(); ++i) {
         if (r.elements[i] < 0 || r.elements[i] >= ne)
           fail("elements[" + std::to_string(i) + "] = " + std::to_string(r.elements[i]) +
@@ -1249,7 +1385,7 @@ std::vector<Index> select_elements(const RegionSpec& r, const SimplicialMesh<Dim
         out.push_back(r.elements[i]);
       }
       break;
-    case RegionSpec::Kind::Box: {
+    case ElementSelector::Kind::Box: {
       const auto [lo, hi] = scene_detail::absolute_box<Dim>(r.box, bb, tol);
       for (Index e = 0; e < ne; ++e) {
         const Vec<Dim> c = mesh.centroid(e);
@@ -1257,7 +1393,7 @@ std::vector<Index> select_elements(const RegionSpec& r, const SimplicialMesh<Dim
       }
       break;
     }
-    case RegionSpec::Kind::Slab: {
+    case ElementSelector::Kind::Slab: {
       if (r.slab.axis >= Dim) fail("slab: axis out of range");
       const auto [lo, hi] = scene_detail::absolute_slab<Dim>(r.slab, bb, tol);
       for (Index e = 0; e < ne; ++e) {
@@ -1266,11 +1402,11 @@ std::vector<Index> select_elements(const RegionSpec& r, const SimplicialMesh<Dim
       }
       break;
     }
-    case RegionSpec::Kind::MeshRegion: {
+    case ElementSelector::Kind::MeshRegion: {
       if (static_cast<Index>(mesh_regions.size()) != ne)
         fail("mesh_region: the mesh's region ids are not available (" +
              std::to_string(mesh_regions.size()) + " ids for " + std::to_string(ne) +
-             " elements; pass them to build_materials)");
+             " elements; pass them to build_materials / build_muscles)");
       std::set<int> ids(mesh_regions.begin(), mesh_regions.end());
       for (Index e = 0; e < ne; ++e)
         if (mesh_regions[e] == r.mesh_region) out.push_back(e);
@@ -1287,6 +1423,15 @@ std::vector<Index> select_elements(const RegionSpec& r, const SimplicialMesh<Dim
   out.erase(std::unique(out.begin(), out.end()), out.end());
   if (out.empty()) fail("selects no element (by element centroid)");
   return out;
+}
+
+/// \brief The elements a region assignment picks (see the ElementSelector overload).
+/// \throws InputError "SCENE: regions[i]: ..." for out-of-range indices or an empty selection
+template <int Dim>
+std::vector<Index> select_elements(const RegionSpec& r, const SimplicialMesh<Dim>& mesh,
+                                   const std::vector<int>& mesh_regions,
+                                   const std::string& scene_file = {}) {
+  return select_elements(element_selector(r), mesh, mesh_regions, scene_file);
 }
 
 /// \brief The material of every element: the default material, then each region assignment
@@ -1324,6 +1469,79 @@ MaterialField build_materials(const SceneSpec& scene, const SimplicialMesh<Dim>&
     }
   }
   return field;
+}
+
+/// \brief The per-element muscle data of a scene on its mesh (build_muscles()): what
+/// Solver::set_muscle and Solver::set_activation take.
+struct MuscleField {
+  std::vector<int> group;  ///< #E: the muscle group of each element, -1 outside every group
+  VectorX stiffness;       ///< #E: k_e, Pa (the group's stiffness; 0 outside groups)
+  /// #E by 3: the group's unit fibre direction (first Dim entries; the rest 0); (1, 0, 0)
+  /// outside groups (unused there: k_e = 0)
+  MatrixX fibres;
+  VectorX activations;             ///< #G: the groups' activations from the file
+  std::vector<std::string> names;  ///< #G: the groups' names
+
+  int num_groups() const { return static_cast<int>(names.size()); }
+  /// Per-group activations -> #E per-element activations (1, the rest length, outside groups).
+  /// \throws InputError when a.size() != num_groups() or an entry is not finite
+  VectorX element_activations(const VectorX& a) const {
+    if (a.size() != num_groups())
+      throw InputError("element_activations: " + std::to_string(a.size()) + " activations for " +
+                       std::to_string(num_groups()) + " muscle groups");
+    if (!a.allFinite()) throw InputError("element_activations: non-finite activation");
+    VectorX out = VectorX::Ones(static_cast<Index>(group.size()));
+    for (size_t e = 0; e < group.size(); ++e)
+      if (group[e] >= 0) out[static_cast<Index>(e)] = a[group[e]];
+    return out;
+  }
+};
+
+/// \brief The scene's muscle groups on its mesh: per-element group index, stiffness and fibre,
+/// and the per-group activations. A scene without "muscles" gives no group (every element -1,
+/// stiffness 0).
+/// \param[in] mesh  the mesh from build_mesh<Dim>(scene)
+/// \param[in] mesh_regions  #E region ids (MeshWithRegions::region); needed only by groups
+///   that select by "mesh_region"
+/// \throws InputError naming the scene file and the group's JSON path when a group selects no
+///   element or an index out of range, and naming both groups when an element is in two
+template <int Dim>
+MuscleField build_muscles(const SceneSpec& scene, const SimplicialMesh<Dim>& mesh,
+                          const std::vector<int>& mesh_regions = {}) {
+  scene_detail::check_dimension<Dim>(scene, "build_muscles");
+  const Index ne = mesh.num_elements();
+  const auto& groups = scene.muscles.groups;
+  MuscleField out;
+  out.group.assign(ne, -1);
+  out.stiffness = VectorX::Zero(ne);
+  out.fibres = MatrixX::Zero(ne, 3);
+  out.fibres.col(0).setOnes();
+  out.activations.resize(static_cast<Index>(groups.size()));
+  for (size_t g = 0; g < groups.size(); ++g) {
+    const MuscleGroupSpec& grp = groups[g];
+    out.names.push_back(grp.name);
+    out.activations[static_cast<Index>(g)] = grp.activation;
+    const std::vector<Index> sel = select_elements(grp.elements, mesh, mesh_regions, scene.file);
+    Index overlaps = 0, first = -1;
+    for (Index e : sel)
+      if (out.group[e] >= 0 && overlaps++ == 0) first = e;
+    if (overlaps > 0) {
+      const MuscleGroupSpec& other = groups[out.group[first]];
+      throw InputError(grp.json_path + ": muscle group \"" + grp.name + "\" overlaps group \"" +
+                           other.name + "\" (" + other.json_path + ") in " +
+                           std::to_string(overlaps) + " element(s), the first element " +
+                           std::to_string(first) +
+                           "; an element belongs to at most one muscle group",
+                       scene.file);
+    }
+    for (Index e : sel) {
+      out.group[e] = static_cast<int>(g);
+      out.stiffness[e] = grp.stiffness;
+      out.fibres.row(e).setZero();
+      for (int k = 0; k < Dim; ++k) out.fibres(e, k) = grp.fibre[k];
+    }
+  }
+  return out;
 }
 
 /// \brief The Dirichlet mask of the scene's "fixed" entries (drivers are not included).

@@ -22,8 +22,9 @@ template <int Dim>
 struct RolloutControls {
   VertexMatrix<Dim> q0;  ///< initial positions, #V by Dim
   VertexMatrix<Dim> v0;  ///< initial velocities, #V by Dim
-  /// Extra external forces per step (N per vertex), added to the forces the step hook (or, without
-  /// a hook, the solver) provides. Empty: none; otherwise exactly `steps` entries.
+  /// Extra external forces per step (N per vertex), added to the base forces (the solver's when
+  /// the Rollout was made) or to what the step hook sets. Empty: none; otherwise exactly `steps`
+  /// entries.
   std::vector<VertexMatrix<Dim>> forces;
   /// Muscle activations (#E each): `steps` entries (one per step), one entry (held constant), or
   /// empty (the solver's current activations, held).
@@ -100,9 +101,13 @@ class Rollout {
     if (options_.checkpoint_every < 0)
       throw InputError("RolloutOptions: checkpoint_every must be >= 0");
     adjoint_.set_options(options_.backward);
+    base_forces_ = solver_.external_forces();
   }
 
   const RolloutOptions& options() const { return options_; }
+  /// The forces every step starts from (the solver's external forces when the Rollout was
+  /// made): the step hook may replace them, then the controls' forces are added.
+  void set_base_forces(const VertexMatrix<Dim>& f) { base_forces_ = f; }
   void set_options(const RolloutOptions& o) {
     options_ = o;
     adjoint_.set_options(o.backward);
@@ -119,9 +124,6 @@ class Rollout {
     controls_ = c;
     loss_ = loss;
     const int T = options_.steps;
-    const Index nv = solver_.mesh().num_vertices();
-    base_forces_ = hook_ ? VertexMatrix<Dim>() : solver_.external_forces();
-    if (base_forces_.size() == 0 && !hook_) base_forces_ = VertexMatrix<Dim>::Zero(nv, Dim);
     solver_.set_time(0.0);
     solver_.set_state(c.q0, c.v0);
     records_.clear();
@@ -251,8 +253,9 @@ class Rollout {
   }
 
   void run_step(int i, StepRecord<Dim>* rec, bool count = true) {
+    solver_.set_external_forces(base_forces_);
     if (hook_) hook_(solver_, i);
-    VertexMatrix<Dim> f = hook_ ? solver_.external_forces() : base_forces_;
+    VertexMatrix<Dim> f = solver_.external_forces();
     if (!controls_.forces.empty()) f += controls_.forces[i];
     solver_.set_external_forces(f);
     if constexpr (SolverT::kHasFibreTerms) {

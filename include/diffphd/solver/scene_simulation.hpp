@@ -1,10 +1,10 @@
 #pragma once
 /// \file scene_simulation.hpp
 /// \brief SceneSimulation (PD) and NewtonSceneSimulation (reference): a scene file
-/// (io::SceneSpec) set up on a solver: mesh,
-/// materials, Dirichlet set, initial velocities, drivers (each handed over when the clock
-/// reaches its start) and per-step external forces. `diffphd run` and the scene tests both step
-/// through this one class, so a test of a shipped scene tests what users run.
+/// (io::SceneSpec) set up on a solver: mesh, materials, Dirichlet set, muscles, initial
+/// velocities, drivers (each handed over when the clock reaches its start) and per-step
+/// external forces. `diffphd run` and the scene tests both step through this one class, so a
+/// test of a shipped scene tests what users run.
 ///
 /// \code
 /// auto scene = diffphd::io::load_scene("scenes/armadillo_twist.json", /*contrast=*/1000.0);
@@ -39,9 +39,21 @@ constexpr std::optional<io::EnergyKind> scene_energy_kind() {
     return io::EnergyKind::NeoHookean;
   else if constexpr (std::is_same_v<Energy, Energies<NeoHookeanProx, LogVolume>>)
     return io::EnergyKind::NeoHookeanLogVolume;
+  else if constexpr (std::is_same_v<Energy, Energies<Corotated, Volume, Muscle>>)
+    return io::EnergyKind::CorotatedVolumeMuscle;
   else
     return std::nullopt;
 }
+
+namespace detail {
+/// True when the solver type has fibre (muscle) terms: `Sim::kHasFibreTerms` (Solver); false
+/// for solvers without it (NewtonSolver).
+template <class Sim, class = void>
+struct sim_has_fibre_terms : std::false_type {};
+template <class Sim>
+struct sim_has_fibre_terms<Sim, std::void_t<decltype(Sim::kHasFibreTerms)>>
+    : std::bool_constant<Sim::kHasFibreTerms> {};
+}  // namespace detail
 
 inline WeightRouting to_weight_routing(io::Routing r) {
   switch (r) {
@@ -83,14 +95,27 @@ inline SolverOptions scene_solver_options(const io::SceneSpec& scene, int dim,
 }
 
 /// \brief A scene on any solver with Solver's scene-facing interface (`fix_vertices`,
-/// `add_driver`, `set_external_forces`, `set_state`, `step`, `positions`, `time`): builds the
-/// mesh, materials, Dirichlet set and initial velocities, hands each driver over when the clock
+/// `add_driver`, `set_external_forces`, `set_state`, `set_time`, `step`, `positions`, `time`;
+/// `set_muscle` and `set_activation` when it has fibre terms): builds the mesh, materials,
+/// Dirichlet set, muscles and initial velocities, hands each driver over when the clock
 /// reaches its start, and applies the forces active at each step. Owns the mesh, the materials
 /// and the solver. SceneSimulation (PD) and NewtonSceneSimulation (the Newton reference) are
 /// this class with the solver's options computed from the scene.
+///
+/// Muscles: on a solver with fibre terms (`Sim::kHasFibreTerms`) the constructor applies the
+/// scene's muscle groups (set_muscle with the groups' stiffness and fibres, set_activation with
+/// the file's activations); set_group_activations() changes them per group. A scene with
+/// muscles on a solver without fibre terms is an InputError.
+///
+/// For a rollout / adjoint engine that drives the solver itself: prepare_step() is what step()
+/// does before the solver's step(), restart() puts the solver back at time 0, and
+/// scene_forces(t) is the external-force matrix of time t.
 template <int Dim, class Sim>
 class SceneRunner {
  public:
+  /// True when the solver has fibre (muscle) terms, i.e. set_group_activations() exists.
+  static constexpr bool kHasMuscles = detail::sim_has_fibre_terms<Sim>::value;
+
   template <class Options>
   SceneRunner(const io::SceneSpec& scene, const Options& options)
       : scene_(checked_dimension(scene)),
@@ -105,20 +130,83 @@ class SceneRunner {
       for (int k = 0; k < Dim; ++k) any |= (axes[k] = mask(v, k));
       if (any) sim_.fix_vertices({v}, axes);
     }
-    sim_.set_state(mesh().rest_positions(),
-                   io::initial_velocities<Dim>(scene_, mesh(), materials_));
+    initial_velocities_ = io::initial_velocities<Dim>(scene_, mesh(), materials_);
+    sim_.set_state(mesh().rest_positions(), initial_velocities_);
     for (const io::ForceSpec& f : scene_.forces)
       force_vertices_.push_back(io::select_vertices(f.vertices, mesh()));
     // Drivers' vertex sets are checked now, not when they start.
     for (const io::DriverSpec& d : scene_.drivers) io::select_vertices(d.vertices, mesh());
+    if constexpr (kHasMuscles) {
+      muscles_ = io::build_muscles<Dim>(scene_, mesh(), built_.region);
+      if (muscles_.num_groups() > 0) {
+        sim_.set_muscle(muscles_.stiffness, muscles_.fibres);
+        set_group_activations(muscles_.activations);
+      }
+    } else if (!scene_.muscles.empty()) {
+      throw InputError(scene_.file +
+                       ": the scene has \"muscles\" but the solver has no muscle "
+                       "(fibre) term");
+    } else {
+      muscles_.group.assign(mesh().num_elements(), -1);
+    }
   }
 
-  /// One solver step at the current time: drivers due by now are added (from the positions
-  /// reached), the scene's forces active now are applied, then the solver's step().
+  /// One solver step at the current time: prepare_step(), then the solver's step().
   auto step() {
+    prepare_step();
+    return sim_.step();
+  }
+
+  /// What step() does before the solver's step(), at the solver's current time t: drivers due
+  /// by t are added (from the positions reached), and the scene's forces active at t are set
+  /// (scene_forces(t); nothing is set when the scene has no forces).
+  void prepare_step() {
     add_due_drivers(sim_.time());
     apply_forces(sim_.time());
-    return sim_.step();
+  }
+
+  /// Puts the solver back at time 0 with the scene's initial state: the rest positions and the
+  /// scene's initial velocities. Drivers already added stay added, with the reference positions
+  /// (and default twist centres) taken when they were first added: a driver with start = 0
+  /// replays exactly; one with start > 0 replays its motion from where the vertices were at its
+  /// start in the first run. Fixed vertices, materials and muscle activations are left as they
+  /// are (set_group_activations() to change them).
+  void restart() {
+    sim_.set_time(0.0);
+    sim_.set_state(mesh().rest_positions(), initial_velocities_);
+  }
+
+  /// The external forces of the scene's "forces" active at time t (start <= t < stop), N per
+  /// vertex, #V by Dim (zero when none is active).
+  VertexMatrix<Dim> scene_forces(double t) const {
+    VertexMatrix<Dim> F = VertexMatrix<Dim>::Zero(mesh().num_vertices(), Dim);
+    for (size_t i = 0; i < scene_.forces.size(); ++i) {
+      const io::ForceSpec& f = scene_.forces[i];
+      if (t < f.start || t >= f.stop) continue;
+      const VectorX fv = io::per_vertex_force(f, static_cast<Index>(force_vertices_[i].size()));
+      for (Index v : force_vertices_[i]) F.row(v) += fv.head<Dim>().transpose();
+    }
+    return F;
+  }
+
+  /// #E: the muscle group of each element (index into scene().muscles.groups), -1 outside
+  /// every group (all -1 without muscles).
+  const std::vector<int>& muscle_groups() const { return muscles_.group; }
+  /// The number of muscle groups (0 without muscles).
+  int num_muscle_groups() const { return muscles_.num_groups(); }
+  /// The scene's muscles on the mesh (per-element stiffness and fibres, group names, the
+  /// file's activations).
+  const io::MuscleField& muscles() const { return muscles_; }
+  /// The current per-group activations (the file's until set_group_activations()).
+  const VectorX& group_activations() const { return group_activations_; }
+  /// Sets the activation of every muscle group (num_muscle_groups() entries, target fibre
+  /// stretch, 1 = rest length) on the solver: each element gets its group's value (elements
+  /// outside groups 1, where the stiffness is 0). Local step only: no refactorization.
+  /// \throws InputError on a wrong size or a non-finite entry
+  template <bool M = kHasMuscles, std::enable_if_t<M, int> = 0>
+  void set_group_activations(const VectorX& a) {
+    sim_.set_activation(muscles_.element_activations(a));
+    group_activations_ = a;
   }
 
   const io::SceneSpec& scene() const { return scene_; }
@@ -126,6 +214,8 @@ class SceneRunner {
   /// Per-element region ids of the mesh file / generator (0 where it has none).
   const std::vector<int>& mesh_regions() const { return built_.region; }
   const MaterialField& materials() const { return materials_; }
+  /// #V by Dim: the scene's initial velocities (restart() sets them again).
+  const VertexMatrix<Dim>& initial_velocities() const { return initial_velocities_; }
   Sim& solver() { return sim_; }
   const Sim& solver() const { return sim_; }
 
@@ -172,14 +262,7 @@ class SceneRunner {
 
   void apply_forces(double t) {
     if (scene_.forces.empty()) return;
-    VertexMatrix<Dim> F = VertexMatrix<Dim>::Zero(mesh().num_vertices(), Dim);
-    for (size_t i = 0; i < scene_.forces.size(); ++i) {
-      const io::ForceSpec& f = scene_.forces[i];
-      if (t < f.start || t >= f.stop) continue;
-      const VectorX fv = io::per_vertex_force(f, static_cast<Index>(force_vertices_[i].size()));
-      for (Index v : force_vertices_[i]) F.row(v) += fv.head<Dim>().transpose();
-    }
-    sim_.set_external_forces(F);
+    sim_.set_external_forces(scene_forces(t));
   }
 
   io::SceneSpec scene_;
@@ -188,6 +271,9 @@ class SceneRunner {
   Sim sim_;
   std::vector<bool> driver_added_;
   std::vector<std::vector<Index>> force_vertices_;
+  VertexMatrix<Dim> initial_velocities_;
+  io::MuscleField muscles_;
+  VectorX group_activations_;
 };
 
 /// \brief A scene on the PD forward solver Solver<Dim, Energy>.
@@ -218,9 +304,13 @@ class SceneSimulation : public SceneRunner<Dim, Solver<Dim, Energy>> {
 
 /// \brief Newton options for a scene: h, gravity and mass damping alpha from the scene; `tol`,
 /// `max_iterations` and the projection from `base`. Throws InputError when the scene asks for
-/// stiffness damping (beta0 > 0), which NewtonSolver does not model.
+/// stiffness damping (beta0 > 0) or has muscles, which NewtonSolver does not model.
 inline NewtonOptions scene_newton_options(const io::SceneSpec& scene, int dim,
                                           NewtonOptions base = {}) {
+  if (!scene.muscles.empty())
+    throw InputError(scene.file +
+                     ": muscles: the Newton reference has no muscle term (it models the "
+                     "passive Neo-Hookean material only)");
   if (scene.solver.beta0 > 0)
     throw InputError(scene.file +
                      ": solver.damping.beta0 > 0: the Newton reference models mass "
