@@ -51,7 +51,9 @@ inline nlohmann::json to_json(const optim::TaskResult& r) {
     p["final"] = r.final[i];
     if (r.truth.size() == r.final.size()) {
       p["truth"] = r.truth[i];
-      p["rel_error"] = std::abs(r.final[i] - r.truth[i]) / std::max(std::abs(r.truth[i]), 1e-300);
+      p["abs_error"] = std::abs(r.final[i] - r.truth[i]);
+      if (r.truth[i] != 0)
+        p["rel_error"] = std::abs(r.final[i] - r.truth[i]) / std::abs(r.truth[i]);
     }
     params[r.coordinates[i]] = p;
   }

@@ -113,9 +113,12 @@ int cmd_optimize(const std::string& task_path, std::optional<int> max_evals,
     for (auto it = j["parameters"].begin(); it != j["parameters"].end(); ++it) {
       std::cout << "  " << it.key() << ": " << it.value()["initial"].get<double>() << " -> "
                 << it.value()["final"].get<double>();
-      if (it.value().contains("truth"))
+      if (it.value().contains("rel_error"))
         std::cout << " (truth " << it.value()["truth"].get<double>() << ", rel error "
                   << it.value()["rel_error"].get<double>() << ")";
+      else if (it.value().contains("truth"))
+        std::cout << " (truth " << it.value()["truth"].get<double>() << ", abs error "
+                  << it.value()["abs_error"].get<double>() << ")";
       std::cout << "\n";
     }
   }

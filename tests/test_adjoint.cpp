@@ -540,3 +540,27 @@ TEST_CASE(
   INFO("smallest eigenvalue of H_psi + k_bar I over the sweep, in units of k_bar: " << worst);
   CHECK(worst >= -1e-8);
 }
+
+TEST_CASE("Rollout: bad controls and options are errors that say what is wrong", "[adjoint]") {
+  Problem<3, Energies<Corotated, Volume>> prob;
+  Params<3> p = prob.initial();
+  Solver<3, Energies<Corotated, Volume>> sim(prob.mesh, p.materials, prob.solver_options(p));
+  RolloutOptions ro;
+  ro.steps = 3;
+  Rollout<3, Energies<Corotated, Volume>> roll(sim, ro);
+  auto loss = [](int, const VertexMatrix<3>&, const VertexMatrix<3>&, VertexMatrix<3>*,
+                 VertexMatrix<3>*) { return 0.0; };
+  CHECK_THROWS_WITH(roll.forward(p.controls, loss),
+                    Catch::Contains("forces has 6 entries, expected 0 or 3"));
+  p.controls.forces.clear();
+  p.controls.activations.push_back(VectorX::Ones(prob.mesh.num_elements()));
+  CHECK_THROWS_WITH(roll.forward(p.controls, loss),
+                    Catch::Contains("activations given but the energy has no muscle term"));
+  p.controls.activations.clear();
+  p.controls.v0.resize(3, 3);
+  CHECK_THROWS_WITH(roll.forward(p.controls, loss), Catch::Contains("q0 and v0 must have"));
+  CHECK_THROWS_WITH(roll.backward(), Catch::Contains("call forward() first"));
+  RolloutOptions bad;
+  bad.steps = 0;
+  CHECK_THROWS_AS((Rollout<3, Energies<Corotated, Volume>>(sim, bad)), InputError);
+}

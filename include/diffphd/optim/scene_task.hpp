@@ -61,7 +61,7 @@ class SceneTask {
                  [this](SolverT&, int) { runner_.prepare_step(); }) {
     SolverT& s = runner_.solver();
     SolverOptions o = s.options();
-    o.eps_abs = std::min(o.eps_abs, 1e-10);
+    o.eps_abs = task.eps_abs;
     s.set_options(o);
     base_options_ = o;
     base_materials_ = runner_.materials();

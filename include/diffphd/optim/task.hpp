@@ -88,9 +88,10 @@ struct TaskSpec {
   unsigned seed = 1;
   // forward solver overrides
   double eps_rel = 1e-8;
+  double eps_abs = 1e-10;  ///< absolute floor of the gate (m)
   GateScale gate = GateScale::StepRelative;
   int max_solver_iterations = 5000;
-  int anderson = 5;
+  int anderson = -1;  ///< -1: auto (m = 1 on heterogeneous meshes)
   // backward
   BackwardOptions backward;
   int checkpoint_every = 0;
@@ -333,9 +334,11 @@ inline TaskSpec load_task(const std::string& path) {
   }
   if (root.contains("solver")) {
     const json& j = root.at("solver");
-    p.expect_object(j, "solver", {"eps_rel", "gate", "max_iterations", "anderson"});
+    p.expect_object(j, "solver", {"eps_rel", "eps_abs", "gate", "max_iterations", "anderson"});
     t.eps_rel = p.number(j, "solver", "eps_rel", 1e-8);
     p.positive(t.eps_rel, "solver.eps_rel");
+    t.eps_abs = p.number(j, "solver", "eps_abs", 1e-10);
+    p.non_negative(t.eps_abs, "solver.eps_abs");
     if (j.contains("gate")) {
       const std::string g = p.string(j.at("gate"), "solver.gate");
       if (g == "paper")
@@ -347,7 +350,7 @@ inline TaskSpec load_task(const std::string& path) {
     }
     t.max_solver_iterations = static_cast<int>(p.integer(j, "solver", "max_iterations", 5000));
     p.at_least(t.max_solver_iterations, 1, "solver.max_iterations");
-    t.anderson = static_cast<int>(p.integer(j, "solver", "anderson", 5));
+    t.anderson = static_cast<int>(p.integer(j, "solver", "anderson", -1));
     p.at_least(t.anderson, -1, "solver.anderson");
   }
   if (root.contains("backward")) {
