@@ -28,6 +28,7 @@ struct BenchBackwardArgs {
   SceneOverrides over;
   int checkpoint_every = 0;
   double tolerance = 1e-8;
+  int restart = 40;
   bool progress = true;
 };
 
@@ -117,6 +118,7 @@ nlohmann::json bench_backward_energy(const io::SceneSpec& scene, const BenchBack
       bo.filter = f;
       bo.method = m;
       bo.tolerance = a.tolerance;
+      bo.restart = a.restart;
       bo.max_iterations = 2000;
       if (a.progress)
         std::cerr << "  " << scene.output.name << ": filter " << to_string(f) << ", "

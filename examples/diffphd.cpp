@@ -256,6 +256,8 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   bench_bw->add_option("--adjoint-tolerance", bb.tolerance, "Adjoint tolerance (default 1e-8)")
       ->check(CLI::PositiveNumber);
+  bench_bw->add_option("--restart", bb.restart, "GMRES restart length (default 40)")
+      ->check(CLI::PositiveNumber);
   bench_bw->add_option("--checkpoint-every", bb.checkpoint_every, "0 = keep every step (default)")
       ->check(CLI::NonNegativeNumber);
   bench_bw->add_option("--contrast", bb_contrast, "Stiffness factor of the contrast regions")

@@ -355,7 +355,9 @@ inline TaskSpec load_task(const std::string& path) {
   }
   if (root.contains("backward")) {
     const json& j = root.at("backward");
-    p.expect_object(j, "backward", {"filter", "method", "tolerance", "checkpoint_every"});
+    p.expect_object(j, "backward", {"filter", "method", "tolerance", "restart", "checkpoint_every"});
+    t.backward.restart = static_cast<int>(p.integer(j, "backward", "restart", 40));
+    p.at_least(t.backward.restart, 1, "backward.restart");
     if (j.contains("filter")) {
       const std::string f = p.string(j.at("filter"), "backward.filter");
       bool ok = false;
