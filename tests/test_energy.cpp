@@ -487,6 +487,8 @@ TEMPLATE_TEST_CASE_SIG("Filtered prox Hessian (eq. 24) where H_prox is indefinit
     for (int i = 0; i < Dim; ++i) {
       const double k = es.eigenvalues()(i);
       want(i) = (1 - tau) * k + tau * std::abs(k);
+      // tau > 0 floors the blended eigenvalues at 1e-6 k_bar (the clamp's zeros are inverted).
+      if (tau > 0) want(i) = std::max(want(i), 1e-6 * means.k_bar);
     }
     Eigen::SelfAdjointEigenSolver<MatD<Dim>> et(Ht);
     std::sort(want.data(), want.data() + Dim);
