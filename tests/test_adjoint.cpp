@@ -12,6 +12,7 @@
 
 #include <diffphd/energy/energy.hpp>
 #include <diffphd/io/generators.hpp>
+#include <diffphd/energy/stretch_energy.hpp>
 #include <diffphd/solver/rollout.hpp>
 
 using namespace diffphd;
@@ -563,4 +564,57 @@ TEST_CASE("Rollout: bad controls and options are errors that say what is wrong",
   RolloutOptions bad;
   bad.steps = 0;
   CHECK_THROWS_AS((Rollout<3, Energies<Corotated, Volume>>(sim, bad)), InputError);
+}
+
+namespace {
+/// A user density (Neo-Hookean written out) for StretchEnergy: no param_differential.
+struct UserNeoHookean {
+  template <class T, int Dim>
+  static T psi(const Eigen::Matrix<T, Dim, 1>& s, const ProxMeans& m) {
+    using std::log;
+    T lnJ = T(0);
+    for (int i = 0; i < Dim; ++i) lnJ += log(s(i));
+    return T(0.5 * m.mu_bar) * (s.squaredNorm() - T(Dim)) - T(m.mu_bar) * lnJ +
+           T(0.5 * m.lambda_bar) * lnJ * lnJ;
+  }
+};
+}  // namespace
+
+TEST_CASE("Rollout with a user (AD) density: state gradients exact, material gradients refused",
+          "[adjoint]") {
+  using E = StretchEnergy<UserNeoHookean>;
+  Problem<2, E> prob;
+  prob.steps = 3;
+  Params<2> p = prob.initial();
+  auto loss = [&](int f, const VertexMatrix<2>& q, const VertexMatrix<2>& v, VertexMatrix<2>* dq,
+                  VertexMatrix<2>* dv) { return prob.loss(f, q, v, dq, dv); };
+  RolloutOptions ro;
+  ro.steps = prob.steps;
+  ro.backward.tolerance = 1e-13;
+  ro.material_gradient = true;
+  {
+    Solver<2, E> sim(prob.mesh, p.materials, prob.solver_options(p));
+    sim.fix_vertices(prob.fixed);
+    Rollout<2, E> roll(sim, ro);
+    roll.forward(p.controls, loss);
+    CHECK_THROWS_WITH(roll.backward(), Catch::Contains("material gradients are not available"));
+  }
+  ro.material_gradient = false;
+  Solver<2, E> sim(prob.mesh, p.materials, prob.solver_options(p));
+  sim.fix_vertices(prob.fixed);
+  Rollout<2, E> roll(sim, ro);
+  roll.forward(p.controls, loss);
+  const RolloutGradient<2> g = roll.backward();
+  std::mt19937 rng(2);
+  std::uniform_real_distribution<double> u(-1, 1);
+  VertexMatrix<2> d(prob.mesh.num_vertices(), 2);
+  for (Index i = 0; i < d.size(); ++i) d.data()[i] = u(rng);
+  const double eps = 1e-5;
+  RolloutControls<2> cp = p.controls, cm = p.controls;
+  cp.v0 += eps * d;
+  cm.v0 -= eps * d;
+  const double fd = (roll.forward(cp, loss) - roll.forward(cm, loss)) / (2 * eps);
+  const double an = (g.dv0.array() * d.array()).sum();
+  INFO("AD density, v0 direction: adjoint " << an << ", FD " << fd);
+  CHECK(std::abs(an - fd) <= 1e-5 * std::abs(fd));
 }

@@ -353,14 +353,15 @@ struct Energies {
     double d_lambda = 0;  ///< w.r.t. the element's own (effective) lambda_e
     Eigen::Vector3d d_means = Eigen::Vector3d::Zero();  ///< w.r.t. the ProxMeans (mu, lambda, k)
     double d_activation = 0;                            ///< w.r.t. the fibre activation a_e
+    /// False when some stretch-prox term has no param_differential (StretchEnergy<Density>):
+    /// d_means and that term's prox part are then missing (the weight parts are complete).
+    bool complete = true;
   };
   template <int Dim>
   static MaterialAdjoint material_adjoint(const Eigen::Matrix<double, Dim, Dim>& F,
                                           const Eigen::Matrix<double, Dim, Dim>& mu_F,
                                           const ElementParams& p, const ProxMeans& means,
                                           double tau) {
-    static_assert(material_differentiable<Dim>,
-                  "Energies::material_adjoint: a stretch-prox term lacks param_differential()");
     MaterialAdjoint out;
     Eigen::Matrix<double, Dim, Dim> U, V;
     Eigen::Matrix<double, Dim, 1> sigma;
@@ -393,6 +394,8 @@ struct Energies {
                 out.d_mu += g[0] + g[2] * wg[0];
                 out.d_lambda += g[1] + g[2] * wg[1];
               }
+            } else if constexpr (detail::has_prox_routing<Terms>::value) {
+              out.complete = false;
             }
           }
         }(),

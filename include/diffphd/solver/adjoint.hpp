@@ -406,6 +406,11 @@ class StepAdjoint {
           dbeta[e] = mesh.rest_volume(e) / h * (Fm.array() * (Ft - F).array()).sum();
         }
       });
+      if (want_material && ne > 0 && !ma[0].complete)
+        throw InputError(
+            "backward: a stretch-prox term of this energy has no param_differential() (e.g. "
+            "StretchEnergy<Density>): material gradients are not available; set "
+            "RolloutOptions::material_gradient = false");
       for (Index e = 0; e < ne; ++e) {
         const double V = mesh.rest_volume(e);
         out.da[e] = V * ma[e].d_activation;
