@@ -1,0 +1,296 @@
+#pragma once
+/// \file ncp.hpp
+/// \brief The Signorini-Coulomb contact problem of one PD iteration as a Fischer-Burmeister NCP,
+/// solved by semismooth Newton on the dense K x K Delassus system (paper eqs. 34-36, DESIGN.md
+/// appendix A). See docs/contact.md.
+///
+/// Given the contact-free global solve q_free = A^-1 b, the contact rows are affine in the
+/// multipliers: y(lambda) = y0 + W lambda with y0 = J q_free - offsets. Per contact c (rows
+/// n = Dim c, f = Dim c + 1 .. Dim c + Dim - 1), all residuals in metres:
+///  - unilateral normal:  phi_n = delta + rho_n lambda_n - sqrt(delta^2 + rho_n^2 lambda_n^2)
+///    with delta = y_n (gap beyond its target) and rho_n = W_nn (eq. 34 with r = W_cc: our
+///    lambda is in the force units of A q, so the compliance W_cc makes rho lambda a length);
+///  - Coulomb friction on the slip u = y_f:  phi_f = rho_f lambda_f - Pi_{B(rho_f mu lambda_n+)}
+///    (rho_f lambda_f - u), rho_f = mean tangent diagonal of W. Inside the cone this is u = 0
+///    (stick); on its boundary lambda_f = -mu lambda_n u / |u| (slide);
+///  - bilateral (attachment): phi_n = delta, phi_f = u.
+/// Newton: d phi = D_y W d lambda + D_l d lambda with per-contact blocks D_y, D_l (the Omega and
+/// E of eq. 35). When no contact slides, D_y and D_l are diagonal and the rows with D_y > 0 give
+/// the symmetric M_sys = W + D_y^-1 D_l (Omega W Omega^T + E after row scaling), solved by
+/// Eigen's LDL^T; separated contacts (D_y = 0) decouple and are solved on their own. A sliding
+/// contact makes the Jacobian nonsymmetric; then a partial-pivoting LU solves it. An Armijo line
+/// search on 1/2 |phi|^2 globalises the iteration.
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include <Eigen/Dense>
+
+#include "types.hpp"
+
+namespace diffphd {
+namespace contact {
+
+/// \brief What one NCP solve did, and the invariants of its solution.
+struct NcpReport {
+  int iterations = 0;        ///< Newton iterations
+  bool converged = false;    ///< max |phi| <= tolerance
+  double residual = 0;       ///< max |phi| at the end (m)
+  int ldlt_solves = 0;       ///< Newton systems solved by LDL^T (symmetric)
+  int lu_solves = 0;         ///< ... by LU (some contact sliding)
+};
+
+/// \brief Invariants of a contact solution (paper Sec. 6.3).
+struct NcpInvariants {
+  int active = 0;                  ///< contacts with lambda_n > 0 (or bilateral)
+  int sliding = 0;                 ///< active frictional contacts on the cone boundary
+  double complementarity = 0;      ///< max over unilateral contacts of |min(delta, rho lambda)| (m)
+  double worst_gap = 0;            ///< min over unilateral contacts of delta (<= 0: penetration)
+  double cone_violation = 0;       ///< max (|lambda_f| - mu lambda_n) / max(mu lambda_n, tiny)
+  double cone_excess = 0;          ///< max |lambda_f| - mu lambda_n (force units), >= 0 ok if 0
+};
+
+/// \brief Semismooth Newton on the Fischer-Burmeister NCP of a set of contact points.
+template <int Dim>
+class NcpSolver {
+ public:
+  using Block = Eigen::Matrix<double, Dim, Dim>;
+
+  /// \param W  K x K Delassus matrix (K = Dim * points.size())
+  /// \param y0 K affine part of the rows (gap rows already minus their targets)
+  /// \param lambda  in: warm start; out: the solution
+  NcpReport solve(const std::vector<ContactPoint<Dim>>& points, const MatrixX& W,
+                  const VectorX& y0, VectorX& lambda, double tolerance, int max_iterations) {
+    const Index np = static_cast<Index>(points.size());
+    const Index K = Dim * np;
+    NcpReport rep;
+    if (K == 0) {
+      rep.converged = true;
+      return rep;
+    }
+    if (lambda.size() != K) lambda = VectorX::Zero(K);
+    rho_n_.resize(np);
+    rho_f_.resize(np);
+    for (Index c = 0; c < np; ++c) {
+      rho_n_[c] = std::max(W(Dim * c, Dim * c), 1e-300);
+      double s = 0;
+      for (int t = 1; t < Dim; ++t) s += W(Dim * c + t, Dim * c + t);
+      rho_f_[c] = std::max(s / (Dim - 1), 1e-300);
+    }
+    project(points, lambda);
+    VectorX y = y0 + W * lambda, phi(K);
+    residual(points, y, lambda, phi, nullptr, nullptr);
+    double theta = 0.5 * phi.squaredNorm();
+    std::vector<Block> Dy(np), Dl(np);
+    MatrixX Jm;
+    VectorX dl(K), trial(K), ytrial(K), phitrial(K);
+    for (int it = 0;; ++it) {
+      rep.residual = phi.cwiseAbs().maxCoeff();
+      if (rep.residual <= tolerance) {
+        rep.converged = true;
+        break;
+      }
+      if (it >= max_iterations) break;
+      rep.iterations = it + 1;
+      bool sliding = false;
+      residual(points, y, lambda, phi, &Dy, &Dl, &sliding);
+      if (!sliding && solve_symmetric(points, W, Dy, Dl, phi, dl)) {
+        ++rep.ldlt_solves;
+      } else {
+        Jm.resize(K, K);
+        for (Index c = 0; c < np; ++c) {
+          Jm.middleRows<Dim>(Dim * c).noalias() = Dy[c] * W.middleRows<Dim>(Dim * c);
+          Jm.block<Dim, Dim>(Dim * c, Dim * c) += Dl[c];
+        }
+        dl = Jm.partialPivLu().solve(-phi);
+        ++rep.lu_solves;
+      }
+      // Armijo backtracking on 1/2 |phi|^2 with the projected trial point.
+      double step = 1.0;
+      bool accepted = false;
+      for (int ls = 0; ls < 30; ++ls) {
+        trial = lambda + step * dl;
+        project(points, trial);
+        ytrial.noalias() = y0 + W * trial;
+        residual(points, ytrial, trial, phitrial, nullptr, nullptr);
+        const double th = 0.5 * phitrial.squaredNorm();
+        if (th <= (1.0 - 1e-4 * step) * theta || th == 0) {
+          accepted = true;
+          break;
+        }
+        step *= 0.5;
+      }
+      if (!accepted) {
+        // No decrease along the Newton direction (a kink of the semismooth map): take the full
+        // step anyway, the next linearisation sees the other side.
+        trial = lambda + dl;
+        project(points, trial);
+        ytrial.noalias() = y0 + W * trial;
+        residual(points, ytrial, trial, phitrial, nullptr, nullptr);
+      }
+      lambda.swap(trial);
+      y.swap(ytrial);
+      phi.swap(phitrial);
+      theta = 0.5 * phi.squaredNorm();
+    }
+    return rep;
+  }
+
+  /// Invariants of lambda with rows y = y0 + W lambda (as returned by solve()).
+  NcpInvariants invariants(const std::vector<ContactPoint<Dim>>& points, const VectorX& y,
+                           const VectorX& lambda) const {
+    NcpInvariants inv;
+    inv.worst_gap = std::numeric_limits<double>::infinity();
+    for (Index c = 0; c < static_cast<Index>(points.size()); ++c) {
+      const auto& p = points[c];
+      const double ln = lambda[Dim * c];
+      const Eigen::Matrix<double, Dim - 1, 1> lf = lambda.template segment<Dim - 1>(Dim * c + 1);
+      if (p.bilateral) {
+        ++inv.active;
+        continue;
+      }
+      const double delta = y[Dim * c];
+      inv.worst_gap = std::min(inv.worst_gap, delta);
+      const double rho = c < static_cast<Index>(rho_n_.size()) ? rho_n_[c] : 1.0;
+      inv.complementarity = std::max(inv.complementarity, std::abs(std::min(delta, rho * ln)));
+      if (ln > 0) ++inv.active;
+      const double cone = p.friction * std::max(ln, 0.0);
+      const double excess = lf.norm() - cone;
+      inv.cone_excess = std::max(inv.cone_excess, excess);
+      if (lf.norm() > 0) inv.cone_violation = std::max(inv.cone_violation, excess / std::max(cone, 1e-300));
+      if (ln > 0 && p.friction > 0 && lf.norm() >= cone * (1 - 1e-9)) ++inv.sliding;
+    }
+    if (!std::isfinite(inv.worst_gap)) inv.worst_gap = 0;
+    return inv;
+  }
+
+ private:
+  /// phi (and optionally its Newton blocks) at (y, lambda).
+  void residual(const std::vector<ContactPoint<Dim>>& points, const VectorX& y,
+                const VectorX& lambda, VectorX& phi, std::vector<Block>* Dy,
+                std::vector<Block>* Dl, bool* sliding = nullptr) const {
+    const Index np = static_cast<Index>(points.size());
+    phi.resize(Dim * np);
+    for (Index c = 0; c < np; ++c) {
+      const auto& p = points[c];
+      const Index r = Dim * c;
+      Block by = Block::Zero(), bl = Block::Zero();
+      const double rn = rho_n_[c], rf = rho_f_[c];
+      const double delta = y[r], ln = lambda[r];
+      using TVec = Eigen::Matrix<double, Dim - 1, 1>;
+      const TVec u = y.template segment<Dim - 1>(r + 1);
+      const TVec lf = lambda.template segment<Dim - 1>(r + 1);
+      if (p.bilateral) {
+        phi.template segment<Dim>(r) = y.template segment<Dim>(r);
+        by.setIdentity();
+      } else {
+        // Normal: Fischer-Burmeister in metres.
+        const double a = delta, b = rn * ln;
+        const double s = std::sqrt(a * a + b * b);
+        phi[r] = a + b - s;
+        if (s > 1e-300) {
+          by(0, 0) = 1.0 - a / s;
+          bl(0, 0) = rn * (1.0 - b / s);
+        } else {
+          by(0, 0) = 1.0 - 1.0 / std::sqrt(2.0);
+          bl(0, 0) = rn * (1.0 - 1.0 / std::sqrt(2.0));
+        }
+        // Friction.
+        if (p.friction <= 0) {
+          phi.template segment<Dim - 1>(r + 1) = rf * lf;
+          bl.template bottomRightCorner<Dim - 1, Dim - 1>() =
+              rf * Eigen::Matrix<double, Dim - 1, Dim - 1>::Identity();
+        } else {
+          const double L = rf * p.friction * std::max(ln, 0.0);
+          const TVec w = rf * lf - u;
+          const double wn = w.norm();
+          if (wn <= L) {  // stick
+            phi.template segment<Dim - 1>(r + 1) = u;
+            by.template bottomRightCorner<Dim - 1, Dim - 1>().setIdentity();
+          } else {  // slide (or free: L = 0)
+            const TVec wh = w / wn;
+            phi.template segment<Dim - 1>(r + 1) = rf * lf - L * wh;
+            const Eigen::Matrix<double, Dim - 1, Dim - 1> P =
+                Eigen::Matrix<double, Dim - 1, Dim - 1>::Identity() - wh * wh.transpose();
+            const double g = L / wn;
+            bl.template bottomRightCorner<Dim - 1, Dim - 1>() =
+                rf * (Eigen::Matrix<double, Dim - 1, Dim - 1>::Identity() - g * P);
+            if (ln > 0) bl.template block<Dim - 1, 1>(1, 0) = -rf * p.friction * wh;
+            by.template bottomRightCorner<Dim - 1, Dim - 1>() = g * P;
+            if (sliding && L > 0) *sliding = true;
+          }
+        }
+      }
+      if (Dy) (*Dy)[c] = by;
+      if (Dl) (*Dl)[c] = bl;
+    }
+  }
+
+  /// lambda_n >= 0 for unilateral contacts; lambda_f inside its cone.
+  static void project(const std::vector<ContactPoint<Dim>>& points, VectorX& lambda) {
+    for (Index c = 0; c < static_cast<Index>(points.size()); ++c) {
+      const auto& p = points[c];
+      if (p.bilateral) continue;
+      const Index r = Dim * c;
+      lambda[r] = std::max(lambda[r], 0.0);
+      auto lf = lambda.template segment<Dim - 1>(r + 1);
+      const double cone = p.friction * lambda[r];
+      const double n = lf.norm();
+      if (n > cone) lf *= (n > 0 ? cone / n : 0.0);
+    }
+  }
+
+  /// The symmetric path: D_y, D_l diagonal (no contact sliding). Rows with D_y = 0 decouple:
+  /// D_l dl = -phi. The others: (W + D_y^-1 D_l) dl = -D_y^-1 phi - W_{.,dec} dl_dec.
+  bool solve_symmetric(const std::vector<ContactPoint<Dim>>& points, const MatrixX& W,
+                       const std::vector<Block>& Dy, const std::vector<Block>& Dl,
+                       const VectorX& phi, VectorX& dl) {
+    const Index np = static_cast<Index>(points.size());
+    const Index K = Dim * np;
+    std::vector<Index> coupled;
+    coupled.reserve(K);
+    dl.setZero(K);
+    for (Index c = 0; c < np; ++c) {
+      // Off-diagonal entries inside a block mean the symmetric form does not hold.
+      if (!Dy[c].isDiagonal(0) || !Dl[c].isDiagonal(0)) return false;
+      for (int k = 0; k < Dim; ++k) {
+        const Index r = Dim * c + k;
+        const double dy = Dy[c](k, k), dd = Dl[c](k, k);
+        if (dy > 1e-12) {
+          coupled.push_back(r);
+        } else {
+          if (!(dd > 0)) return false;
+          dl[r] = -phi[r] / dd;
+        }
+      }
+    }
+    const Index m = static_cast<Index>(coupled.size());
+    if (m == 0) return true;
+    MatrixX M(m, m);
+    VectorX rhs(m);
+    for (Index i = 0; i < m; ++i) {
+      const Index r = coupled[i];
+      const Index c = r / Dim;
+      const int k = static_cast<int>(r % Dim);
+      const double dy = Dy[c](k, k);
+      double s = -phi[r] / dy;
+      for (Index j = 0; j < K; ++j)
+        if (dl[j] != 0) s -= W(r, j) * dl[j];
+      rhs[i] = s;
+      for (Index j = 0; j < m; ++j) M(i, j) = W(r, coupled[j]);
+      M(i, i) += Dl[c](k, k) / dy;
+    }
+    Eigen::LDLT<MatrixX> ldlt(M);
+    if (ldlt.info() != Eigen::Success) return false;
+    const VectorX x = ldlt.solve(rhs);
+    if (!x.allFinite()) return false;
+    for (Index i = 0; i < m; ++i) dl[coupled[i]] = x[i];
+    return true;
+  }
+
+  std::vector<double> rho_n_, rho_f_;
+};
+
+}  // namespace contact
+}  // namespace diffphd
