@@ -25,6 +25,7 @@
 #include "../core/material.hpp"
 #include "../core/mesh.hpp"
 #include "../core/types.hpp"
+#include "../contact/types.hpp"
 #include "../energy/energy.hpp"
 #include "../linalg/pd_matrix.hpp"
 #include "../linalg/pd_system.hpp"
@@ -155,6 +156,8 @@ struct StepReport {
   StepStatus status = StepStatus::MaxIterations;
   std::string message;  ///< empty when converged; otherwise what happened, where
   double seconds = 0;   ///< wall time of the step
+  /// Contact diagnostics (zeros for NoContact and for steps without contact points).
+  contact::ContactStepStats contact;
 };
 
 namespace detail {
@@ -172,7 +175,8 @@ struct as_energies<Energies<T...>> {
 ///
 /// \tparam Dim 2 (triangles) or 3 (tetrahedra)
 /// \tparam Energy one PD term (`Corotated`) or a pack (`Energies<Corotated, Volume>`)
-/// \tparam Contact NoContact (the only model so far)
+/// \tparam Contact NoContact (K = 0, no contact code runs) or contact::NcpContact<Dim> (include
+///   <diffphd/contact/model.hpp>; configure it through contact())
 /// \tparam Backend CpuBackend
 ///
 /// The factor of A (eq. 31) is computed in the constructor and again only when the materials,
@@ -198,14 +202,13 @@ struct as_energies<Energies<T...>> {
 template <int Dim, class Energy, class Contact = NoContact, class Backend = CpuBackend>
 class Solver {
   static_assert(Dim == 2 || Dim == 3, "Solver<Dim, ...>: Dim must be 2 (triangles) or 3 (tets)");
-  static_assert(std::is_same<Contact, NoContact>::value,
-                "Solver: only Contact = NoContact is implemented so far.");
 
  public:
   using EnergyPack = typename detail::as_energies<Energy>::type;
   using Vector = typename Backend::Vector;
   using FixedMask = typename PDSystem<Dim>::FixedMask;
   static constexpr bool kHasFibreTerms = EnergyPack::has_fibre_terms;
+  static constexpr bool kHasContact = !std::is_same<Contact, NoContact>::value;
 
   /// \param mesh  the rest mesh (#V vertices, #E elements)
   /// \param materials  #E materials
@@ -360,8 +363,27 @@ class Solver {
     if (options_.initial_guess == InitialGuess::Inertial) Backend::axpy(h, v_t, q);
     Vector q_prev, b(n), b_prev, qhat, qnext;
     impose(q);
+    if constexpr (kHasContact) {
+      // Contacts of the step (Algorithm 1 lines 8-10): detected between q_t and the inertial
+      // prediction, frames frozen; W and the columns A^-1 j_r on the current factor.
+      contact_active_ = contact_.enabled();
+      if (contact_active_) {
+        fully_fixed_.assign(nv_, 0);
+        for (Index v = 0; v < nv_; ++v) fully_fixed_[v] = mask_.row(v).all() ? 1 : 0;
+        VertexMatrix<Dim> qpred(nv_, Dim);
+        Eigen::Map<Vector>(qpred.data(), n) = qtil;
+        for (Index v = 0; v < nv_; ++v)
+          if (mask_.row(v).any())
+            for (int k = 0; k < Dim; ++k)
+              if (mask_(v, k)) qpred(v, k) = xfix_[Dim * v + k];
+        contact_.begin_step(mesh_, system_, fully_fixed_, positions_, qpred, t_, t1);
+      }
+    }
+    int total_iterations = 0;
+    for (int pass = 0;; ++pass) {
     mixer_ = AndersonMixer<Backend>(window_, options_.anderson_tikhonov, options_.anderson_reset);
     DualGate gate(options_.eps_rel, options_.eps_abs);
+    q_prev.resize(0);
     for (int i = 0;; ++i) {
       // Local step at q^i and b(q^i), eq. (11).
       Index bad_element = -1;
@@ -387,7 +409,7 @@ class Solver {
           break;
         }
       }
-      if (i >= options_.max_iterations) {
+      if (total_iterations + i >= options_.max_iterations) {
         rep.status = StepStatus::MaxIterations;
         std::ostringstream os;
         os << "not converged after " << i << " iterations (primal ratio " << rep.primal_ratio
@@ -402,6 +424,16 @@ class Solver {
         os << "iteration " << i << ": non-finite global solve at vertex " << bad / Dim;
         return fail(rep, t_start, os.str(), mixer_.resets());
       }
+      // Contact (Algorithm 1 lines 15-19): q^ = A^-1 b + sum_r a_r lambda_r.
+      if constexpr (kHasContact)
+        if (contact_active_) {
+          contact_.project(qhat);
+          if (!Backend::all_finite(qhat, &bad)) {
+            std::ostringstream os;
+            os << "iteration " << i << ": non-finite contact solve at vertex " << bad / Dim;
+            return fail(rep, t_start, os.str(), mixer_.resets());
+          }
+        }
       // Anderson, eqs. (18)-(21), then Dirichlet.
       mixer_.mix(q, qhat, qnext);
       impose(qnext);
@@ -414,9 +446,29 @@ class Solver {
       std::swap(q, qnext);
       std::swap(b_prev, b);
       if (b.size() != n) b.resize(n);
-      rep.iterations = i + 1;
+      rep.iterations = total_iterations + i + 1;
     }
-    rep.aa_resets = mixer_.resets();
+    total_iterations = rep.iterations;
+    rep.aa_resets += mixer_.resets();
+    if constexpr (kHasContact) {
+      if (contact_active_) {
+        VertexMatrix<Dim> qm(nv_, Dim);
+        Eigen::Map<Vector>(qm.data(), n) = q;
+        const auto pen = contact_.finish_step(q, qm);
+        // A contact missed by the detection at the start of the step: add it and iterate again
+        // from the converged state (the step's other contacts keep their warm starts).
+        if (rep.status == StepStatus::Converged &&
+            pen.depth > contact_.options.penetration_tolerance &&
+            pass < contact_.options.max_redetections && contact_.redetect(qm) > 0) {
+          rep.status = StepStatus::MaxIterations;
+          rep.converged = false;
+          continue;
+        }
+        rep.contact = contact_.stats();
+      }
+    }
+    break;
+    }
     // Commit: v_{t+h} = (q_{t+h} - q_t) / h.
     for (Index v = 0; v < nv_; ++v)
       for (int k = 0; k < Dim; ++k) {
@@ -431,6 +483,16 @@ class Solver {
   }
 
   // ---- state and diagnostics --------------------------------------------------------------
+
+  /// The contact model (colliders, attachments, options, per-step contact points).
+  template <bool C = kHasContact, std::enable_if_t<C, int> = 0>
+  Contact& contact() {
+    return contact_;
+  }
+  template <bool C = kHasContact, std::enable_if_t<C, int> = 0>
+  const Contact& contact() const {
+    return contact_;
+  }
 
   const VertexMatrix<Dim>& positions() const { return positions_; }
   const VertexMatrix<Dim>& velocities() const { return velocities_; }
@@ -712,6 +774,10 @@ class Solver {
   std::vector<Index> adj_ptr_, adj_;
   std::vector<double> contrib_;
   std::vector<unsigned char> bad_;
+  struct Empty {};
+  std::conditional_t<kHasContact, Contact, Empty> contact_;
+  bool contact_active_ = false;
+  std::vector<char> fully_fixed_;
 };
 
 }  // namespace diffphd
