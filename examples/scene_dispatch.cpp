@@ -6,6 +6,18 @@ namespace diffphd::cli {
 
 template <int Dim>
 static nlohmann::json run_dim(const io::SceneSpec& scene, const RunOptions& opt) {
+  if (io::has_contact(scene)) {
+    switch (scene.solver.energy) {
+      case io::EnergyKind::CorotatedVolume:
+        return run_scene<Dim, Energies<Corotated, Volume>, true>(scene, opt);
+      case io::EnergyKind::NeoHookean:
+        return run_scene<Dim, NeoHookeanProx, true>(scene, opt);
+      default:
+        throw InputError(scene.file + ": solver.energy \"" + io::to_string(scene.solver.energy) +
+                         "\": scenes with contact run with \"corotated+volume\" or "
+                         "\"neo-hookean\"");
+    }
+  }
   switch (scene.solver.energy) {
     case io::EnergyKind::CorotatedVolume:
       return run_scene<Dim, Energies<Corotated, Volume>>(scene, opt);

@@ -12,6 +12,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <diffphd/contact/model.hpp>
 #include <diffphd/energy/energy.hpp>
 #include <diffphd/io/io.hpp>
 #include <diffphd/io/scene.hpp>
@@ -35,8 +36,10 @@ struct RunOptions {
   bool progress = true;           ///< progress bar on a terminal
 };
 
-/// Runs the scene; returns the summary. Throws InputError on bad scenes.
-template <int Dim, class Energy>
+/// Runs the scene; returns the summary. Throws InputError on bad scenes. WithContact: the
+/// solver carries the NCP contact model (scenes with colliders, several bodies or self
+/// contact); stats.csv and the summary then hold the contact diagnostics.
+template <int Dim, class Energy, bool WithContact = false>
 nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt);
 
 /// Picks Dim and the energy from the scene and runs it.
@@ -50,9 +53,10 @@ inline std::string frame_file(const std::string& prefix, int frame, const std::s
   return prefix + digits + ext;
 }
 
-template <int Dim, class Energy>
+template <int Dim, class Energy, bool WithContact>
 nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   namespace fs = std::filesystem;
+  using Contact = std::conditional_t<WithContact, contact::NcpContact<Dim>, NoContact>;
   using json = nlohmann::json;
   SceneOverrides over;
   over.anderson = opt.anderson;
@@ -60,12 +64,12 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   over.max_iterations = opt.max_iterations;
   over.routing = opt.routing;
   over.gate = opt.gate;
-  SceneSimulation<Dim, Energy> run(scene, over);
+  SceneSimulation<Dim, Energy, Contact> run(scene, over);
   const SimplicialMesh<Dim>& mesh = run.mesh();
   const MaterialField& materials = run.materials();
   const SolverOptions& so = run.options();
   const io::Routing routing = opt.routing.value_or(scene.solver.routing);
-  Solver<Dim, Energy>& sim = run.solver();
+  Solver<Dim, Energy, Contact>& sim = run.solver();
 
   const int frames = opt.frames.value_or(scene.output.frames);
   const int substeps = scene.output.substeps;
@@ -78,7 +82,12 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
     csv.open(fs::path(opt.out_dir) / "stats.csv");
     if (!csv) throw InputError("cannot write " + (fs::path(opt.out_dir) / "stats.csv").string());
     csv << "frame,step,time,iterations,primal_ratio,dual_ratio,converged,status,aa_resets,"
-           "seconds,kinetic_energy,min_jacobian,max_displacement\n";
+           "seconds,kinetic_energy,min_jacobian,max_displacement";
+    if (WithContact)
+      csv << ",contact_points,contact_active,contact_sliding,contact_fraction,worst_penetration,"
+             "complementarity,cone_violation,w_off_diagonal_ratio,ncp_iterations,ncp_ldlt,ncp_lu,"
+             "ncp_unconverged,redetections,seconds_detection,seconds_delassus,seconds_ncp";
+    csv << "\n";
   }
   Eigen::VectorXd region(mesh.num_elements()), E = materials.youngs_moduli();
   for (Index e = 0; e < mesh.num_elements(); ++e) region[e] = materials[e].region;
@@ -98,6 +107,10 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   double seconds = 0, min_j = sim.min_jacobian();
   std::vector<double> step_seconds;
   std::string failure;
+  // Contact summary: worst over steps, and the largest fraction of vertices in contact.
+  double worst_pen = 0, worst_compl = 0, worst_cone = -std::numeric_limits<double>::infinity();
+  double max_fraction = 0, active_sum = 0;
+  long redetections = 0, ncp_unconverged = 0;
   ProgressBar bar("run " + name, frames, opt.progress);
   for (int f = 1; f <= frames && failure.empty(); ++f) {
     bool frame_ok = true;
@@ -118,7 +131,25 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
             << r.primal_ratio << ',' << r.dual_ratio << ',' << r.converged << ','
             << to_string(r.status) << ',' << r.aa_resets << ',' << r.seconds << ','
             << sim.kinetic_energy() << ',' << mj << ','
-            << (sim.positions() - mesh.rest_positions()).rowwise().norm().maxCoeff() << '\n';
+            << (sim.positions() - mesh.rest_positions()).rowwise().norm().maxCoeff();
+      if constexpr (WithContact) {
+        const auto& c = r.contact;
+        const double fraction = double(c.active) / mesh.num_vertices();
+        worst_pen = std::max(worst_pen, c.worst_penetration);
+        worst_compl = std::max(worst_compl, c.complementarity);
+        if (c.points > 0) worst_cone = std::max(worst_cone, c.cone_violation);
+        max_fraction = std::max(max_fraction, fraction);
+        active_sum += c.active;
+        redetections += c.redetections;
+        ncp_unconverged += c.ncp_unconverged;
+        if (csv)
+          csv << ',' << c.points << ',' << c.active << ',' << c.sliding << ',' << fraction << ','
+              << c.worst_penetration << ',' << c.complementarity << ',' << c.cone_violation << ','
+              << c.w_off_diagonal_ratio << ',' << c.ncp_iterations << ',' << c.ncp_ldlt << ','
+              << c.ncp_lu << ',' << c.ncp_unconverged << ',' << c.redetections << ','
+              << c.seconds_detection << ',' << c.seconds_delassus << ',' << c.seconds_ncp;
+      }
+      if (csv) csv << std::endl;  // flushed: long runs can be watched
       if (r.status == StepStatus::NonFinite) {
         failure = "step " + std::to_string(steps) + ": " + r.message;
         break;
@@ -157,6 +188,18 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   j["elements"] = mesh.num_elements();
   j["factorizations"] = sim.factorization_count();
   j["min_jacobian"] = min_j;
+  j["contact"] = WithContact;
+  if constexpr (WithContact) {
+    j["contact_bodies"] = run.bodies().num_bodies();
+    j["colliders"] = sim.contact().colliders.size();
+    j["worst_penetration"] = worst_pen;
+    j["max_complementarity"] = worst_compl;
+    j["max_cone_violation"] = std::isfinite(worst_cone) ? worst_cone : 0.0;
+    j["max_contact_fraction"] = max_fraction;
+    j["mean_active_contacts"] = steps ? active_sum / steps : 0.0;
+    j["redetections"] = redetections;
+    j["ncp_unconverged_iterations"] = ncp_unconverged;
+  }
   j["status"] = failure.empty() ? "ok" : "non-finite";
   if (!failure.empty()) j["error"] = failure;
   if (!opt.out_dir.empty()) {
@@ -169,15 +212,26 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
 }  // namespace diffphd::cli
 
 // One explicit instantiation per energy lives in examples/run_<energy>.cpp.
-#define DIFFPHD_CLI_DECLARE_RUN(...)                                      \
-  extern template nlohmann::json diffphd::cli::run_scene<2, __VA_ARGS__>( \
-      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);    \
-  extern template nlohmann::json diffphd::cli::run_scene<3, __VA_ARGS__>( \
+#define DIFFPHD_CLI_DECLARE_RUN(...)                                             \
+  extern template nlohmann::json diffphd::cli::run_scene<2, __VA_ARGS__, false>( \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);           \
+  extern template nlohmann::json diffphd::cli::run_scene<3, __VA_ARGS__, false>( \
       const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);
-#define DIFFPHD_CLI_DEFINE_RUN(...)                                    \
-  template nlohmann::json diffphd::cli::run_scene<2, __VA_ARGS__>(     \
-      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&); \
-  template nlohmann::json diffphd::cli::run_scene<3, __VA_ARGS__>(     \
+#define DIFFPHD_CLI_DEFINE_RUN(...)                                           \
+  template nlohmann::json diffphd::cli::run_scene<2, __VA_ARGS__, false>(     \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);        \
+  template nlohmann::json diffphd::cli::run_scene<3, __VA_ARGS__, false>(     \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);
+// The contact-model instantiations (examples/run_contact.cpp).
+#define DIFFPHD_CLI_DECLARE_CONTACT_RUN(...)                                    \
+  extern template nlohmann::json diffphd::cli::run_scene<2, __VA_ARGS__, true>( \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);          \
+  extern template nlohmann::json diffphd::cli::run_scene<3, __VA_ARGS__, true>( \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);
+#define DIFFPHD_CLI_DEFINE_CONTACT_RUN(...)                                  \
+  template nlohmann::json diffphd::cli::run_scene<2, __VA_ARGS__, true>(     \
+      const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);       \
+  template nlohmann::json diffphd::cli::run_scene<3, __VA_ARGS__, true>(     \
       const diffphd::io::SceneSpec&, const diffphd::cli::RunOptions&);
 
 DIFFPHD_CLI_DECLARE_RUN(diffphd::Energies<diffphd::Corotated, diffphd::Volume>)
@@ -185,3 +239,5 @@ DIFFPHD_CLI_DECLARE_RUN(diffphd::Corotated)
 DIFFPHD_CLI_DECLARE_RUN(diffphd::NeoHookeanProx)
 DIFFPHD_CLI_DECLARE_RUN(diffphd::Energies<diffphd::NeoHookeanProx, diffphd::LogVolume>)
 DIFFPHD_CLI_DECLARE_RUN(diffphd::Energies<diffphd::Corotated, diffphd::Volume, diffphd::Muscle>)
+DIFFPHD_CLI_DECLARE_CONTACT_RUN(diffphd::Energies<diffphd::Corotated, diffphd::Volume>)
+DIFFPHD_CLI_DECLARE_CONTACT_RUN(diffphd::NeoHookeanProx)

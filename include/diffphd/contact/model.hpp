@@ -100,12 +100,18 @@ class NcpContact {
   bool active() const { return !points_.empty(); }
 
   /// q_free (flat #V * Dim) -> q_free + A^-1 J^T lambda with lambda the NCP solution (warm
-  /// started from the previous PD iteration).
-  void project(VectorX& q) {
+  /// started from the previous PD iteration). Inexact inner solve: the NCP stops at
+  /// max(ncp_tolerance, 0.01 pd_increment) (m), pd_increment = |q^k - q^{k-1}| of the PD
+  /// iteration (infinite at the first), so that early PD iterations do not pay for a residual
+  /// far below the PD error; as the PD iteration converges the NCP tolerance reaches
+  /// ncp_tolerance (the converged step is held to it: finish_step() reports it).
+  void project(VectorX& q, double pd_increment = std::numeric_limits<double>::infinity()) {
     if (points_.empty()) return;
     const auto t_a = std::chrono::steady_clock::now();
     const VectorX y0 = delassus_.apply_J(q) - offsets_;
-    const NcpReport r = ncp_.solve(points_, delassus_.W(), y0, lambda_, options.ncp_tolerance,
+    const double tol = std::max(options.ncp_tolerance,
+                                std::min(0.01 * pd_increment, 0.1 * options.contact_distance));
+    const NcpReport r = ncp_.solve(points_, delassus_.W(), y0, lambda_, tol,
                                    options.ncp_max_iterations);
     stats_.ncp_iterations += r.iterations;
     stats_.ncp_ldlt += r.ldlt_solves;
@@ -132,7 +138,8 @@ class NcpContact {
     }
     PenetrationReport<Dim> pen;
     if (!colliders.empty() || options.mesh_contact || options.self_contact)
-      pen = worst_penetration<Dim>(*mesh_, vertex_body_ptr(), q, t1_, colliders, options);
+      pen = worst_penetration<Dim>(*mesh_, vertex_body_ptr(), q, t1_, colliders, options,
+                                   fully_fixed_);
     stats_.worst_penetration = pen.depth;
     return pen;
   }

@@ -17,7 +17,7 @@
 /// Newton: d phi = D_y W d lambda + D_l d lambda with per-contact blocks D_y, D_l (the Omega and
 /// E of eq. 35). When no contact slides, D_y and D_l are diagonal and the rows with D_y > 0 give
 /// the symmetric M_sys = W + D_y^-1 D_l (Omega W Omega^T + E after row scaling), solved by
-/// Eigen's LDL^T; separated contacts (D_y = 0) decouple and are solved on their own. A sliding
+/// Eigen's blocked Cholesky (LDL^T when a pivot vanishes); separated contacts (D_y = 0) decouple and are solved on their own. A sliding
 /// contact makes the Jacobian nonsymmetric; then a partial-pivoting LU solves it. An Armijo line
 /// search on 1/2 |phi|^2 globalises the iteration.
 
@@ -37,7 +37,7 @@ struct NcpReport {
   int iterations = 0;        ///< Newton iterations
   bool converged = false;    ///< max |phi| <= tolerance
   double residual = 0;       ///< max |phi| at the end (m)
-  int ldlt_solves = 0;       ///< Newton systems solved by LDL^T (symmetric)
+  int ldlt_solves = 0;       ///< Newton systems solved by Cholesky / LDL^T (symmetric)
   int lu_solves = 0;         ///< ... by LU (some contact sliding)
 };
 
@@ -104,6 +104,10 @@ class NcpSolver {
           Jm.block<Dim, Dim>(Dim * c, Dim * c) += Dl[c];
         }
         dl = Jm.partialPivLu().solve(-phi);
+        // Redundant contacts (two bodies whose vertices coincide touch each other both ways:
+        // 6 rows on the same 3 DoFs) make the Jacobian exactly singular and the LU returns
+        // NaN: take the least-squares minimum-norm step instead.
+        if (!dl.allFinite()) dl = Jm.completeOrthogonalDecomposition().solve(-phi);
         ++rep.lu_solves;
       }
       // Armijo backtracking on 1/2 |phi|^2 with the projected trial point.
@@ -281,9 +285,18 @@ class NcpSolver {
       for (Index j = 0; j < m; ++j) M(i, j) = W(r, coupled[j]);
       M(i, i) += Dl[c](k, k) / dy;
     }
-    Eigen::LDLT<MatrixX> ldlt(M);
-    if (ldlt.info() != Eigen::Success) return false;
-    const VectorX x = ldlt.solve(rhs);
+    // M = W_AA + D_y^-1 D_l is symmetric positive (semi)definite: Eigen's blocked Cholesky
+    // (LL^T, several times faster than its unblocked LDL^T on K ~ 1000), LDL^T when the
+    // Cholesky meets a zero pivot (a contact row with no compliance, e.g. on a Dirichlet DoF).
+    VectorX x;
+    Eigen::LLT<MatrixX> llt(M);
+    if (llt.info() == Eigen::Success) {
+      x = llt.solve(rhs);
+    } else {
+      Eigen::LDLT<MatrixX> ldlt(M);
+      if (ldlt.info() != Eigen::Success) return false;
+      x = ldlt.solve(rhs);
+    }
     if (!x.allFinite()) return false;
     for (Index i = 0; i < m; ++i) dl[coupled[i]] = x[i];
     return true;

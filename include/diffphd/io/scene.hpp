@@ -6,6 +6,12 @@
 /// SceneSpec is data; the solver (or the CLI) reads it. The schema is documented in
 /// docs/scenes.md.
 ///
+/// Contact: "mesh" may be an array of bodies, merged into one mesh by build_multibody_mesh
+/// (with the body of every vertex and element); selectors may name a body ({"body": i or
+/// "name"}); "initial_velocity" may be per body; "colliders" become contact::Collider<Dim>
+/// (build_colliders) and "contact" a contact::ContactOptions (contact_options); has_contact()
+/// says whether a scene needs the contact model.
+///
 /// Every error in a scene file is an InputError whose what() reads
 /// "SCENE_FILE: JSON.PATH: message", e.g.
 /// "scenes/armadillo_twist.json: regions[2].material.youngs_modulus: must be > 0, found -1";
@@ -46,6 +52,7 @@
 #include "../core/material.hpp"
 #include "../core/mesh.hpp"
 #include "../core/types.hpp"
+#include "../contact/types.hpp"
 #include "generators.hpp"
 #include "mesh_with_regions.hpp"
 #include "plant.hpp"
@@ -140,6 +147,9 @@ struct MeshSpec {
 
   double scale = 1.0;  ///< uniform scale factor, > 0
   VectorX translate;   ///< m, dimension entries (zero by default)
+  /// Where the mesh object is in the file: "mesh" (a single object) or "mesh[i]" (one body of
+  /// an array); names the body in build errors.
+  std::string json_path = "mesh";
 };
 
 /// \brief An axis-aligned box [lo, hi] (closed). With relative = true, lo and hi are fractions
@@ -157,15 +167,21 @@ struct SlabSpec {
   bool relative = false;
 };
 
-/// \brief A set of mesh vertices: an index list, the vertices in a box, or in a slab.
-/// Boxes and slabs are widened by 1e-9 of the bounding-box diagonal so that vertices lying
-/// exactly on a face are selected despite rounding.
+/// \brief A set of mesh vertices: an index list, the vertices in a box, or in a slab, or all
+/// the vertices of one body. Boxes and slabs are widened by 1e-9 of the bounding-box diagonal
+/// so that vertices lying exactly on a face are selected despite rounding.
+///
+/// With body >= 0 a box or slab selects only that body's vertices, and "relative" fractions
+/// refer to that body's bounding box (else to the whole mesh's, all bodies together).
 struct VertexSelector {
-  enum class Kind { Indices, Box, Slab };
+  enum class Kind { Indices, Box, Slab, Body };
   Kind kind = Kind::Indices;
-  std::vector<Index> indices;  ///< Indices: 0-based vertex indices
+  std::vector<Index> indices;  ///< Indices: 0-based vertex indices (of the merged mesh)
   BoxSpec box;                 ///< Box
   SlabSpec slab;               ///< Slab
+  int body = -1;               ///< Body: the body; Box/Slab: restricted to it when >= 0
+  std::string body_name;       ///< the body's name when body >= 0, for messages
+  int num_bodies = 1;          ///< bodies in the scene (a single-body scene needs no body map)
   std::string scene_file;      ///< for error messages
   std::string json_path;       ///< e.g. "fixed[0].vertices", for error messages
 };
@@ -175,13 +191,18 @@ struct VertexSelector {
 /// centroid in a box or slab, or by the mesh's region attribute (the file's region ids, or the
 /// branching generator's branch level).
 struct RegionSpec {
-  enum class Kind { Elements, Box, Slab, MeshRegion };
+  enum class Kind { Elements, Box, Slab, MeshRegion, Body };
   std::string name;  ///< unique; "regions[i]" when the file gives none
   Kind kind = Kind::Elements;
   std::vector<Index> elements;  ///< Elements: 0-based element indices
   BoxSpec box;                  ///< Box (element centroids)
   SlabSpec slab;                ///< Slab (element centroids)
   int mesh_region = 0;          ///< MeshRegion: the region id in the mesh
+  /// Body: all elements of this body; Box/Slab/MeshRegion: restricted to it when >= 0 (relative
+  /// boxes and slabs then refer to the body's bounding box)
+  int body = -1;
+  std::string body_name;  ///< the body's name when body >= 0, for messages
+  int num_bodies = 1;     ///< bodies in the scene (a single-body scene needs no body map)
   /// Pa, -, kg/m^3; keys missing from the file are the default material's. material.region is
   /// the label given to the elements: i + 1 for regions[i] (the default material has 0).
   Material material;
@@ -198,6 +219,9 @@ struct ElementSelector {
   BoxSpec box;                  ///< Box (element centroids)
   SlabSpec slab;                ///< Slab (element centroids)
   int mesh_region = 0;          ///< MeshRegion: the region id in the mesh
+  int body = -1;                ///< as RegionSpec::body
+  std::string body_name;        ///< the body's name when body >= 0, for messages
+  int num_bodies = 1;           ///< bodies in the scene
   std::string json_path;        ///< e.g. "muscles.groups[3]", for error messages
 };
 
@@ -209,6 +233,9 @@ inline ElementSelector element_selector(const RegionSpec& r) {
   s.box = r.box;
   s.slab = r.slab;
   s.mesh_region = r.mesh_region;
+  s.body = r.body;
+  s.body_name = r.body_name;
+  s.num_bodies = r.num_bodies;
   s.json_path = r.json_path;
   return s;
 }
@@ -273,10 +300,63 @@ struct ForceSpec {
   std::string json_path;                                  ///< "forces[i]"
 };
 
-/// \brief The initial velocity v(x) = linear + angular x (x - c), c the centre of mass.
+/// \brief The initial velocity v(x) = linear + angular x (x - c), c the centre of mass (of the
+/// whole scene, or of `body` for a per-body entry).
 struct InitialVelocitySpec {
   VectorX linear;   ///< m/s, dimension entries (zero by default)
   VectorX angular;  ///< rad/s: 3 entries in 3D, 1 in 2D (about the plane normal); zero default
+  int body = -1;    ///< -1: every vertex (the object form); else only this body's vertices
+  std::string json_path;  ///< "initial_velocity" or "initial_velocity[i]"
+};
+
+/// \brief One analytic collider ("colliders[i]"), dimension-agnostic (VectorX with dimension
+/// entries); build_colliders<Dim>() makes contact::Collider<Dim> of it. The solid side is the
+/// inside of the sphere / box and the side of the half-space opposite its normal.
+struct SceneCollider {
+  enum class Kind { HalfSpace, Sphere, Box };
+  Kind kind = Kind::HalfSpace;
+  std::string name;      ///< unique among the colliders; "colliders[i]" when not given
+  VectorX point;         ///< m: half-space: a point on the plane ("point"); sphere, box: "center"
+  VectorX normal;        ///< half-space: the outward (free side) normal, unit length
+  double radius = 0;     ///< sphere: m, > 0
+  VectorX half_extents;  ///< box: m, > 0 each (an axis-aligned box)
+  VectorX velocity;  ///< m/s: scripted constant velocity while start <= t <= stop (zero default)
+  double start = 0;  ///< s, >= 0
+  double stop = std::numeric_limits<double>::infinity();  ///< s, > start
+  double friction = 0;                                    ///< Coulomb mu >= 0
+  double restitution = 0;                                 ///< in [0, 1]
+  std::string json_path;                                  ///< "colliders[i]"
+};
+
+/// The scene-file name of a collider kind ("half-space", "sphere", "box").
+inline const char* to_string(SceneCollider::Kind k) {
+  switch (k) {
+    case SceneCollider::Kind::HalfSpace:
+      return "half-space";
+    case SceneCollider::Kind::Sphere:
+      return "sphere";
+    case SceneCollider::Kind::Box:
+      return "box";
+  }
+  return "?";
+}
+
+/// \brief The "contact" section (contact_options() turns it into contact::ContactOptions).
+/// Defaults are contact::ContactOptions's, except mesh_contact (true with two or more bodies).
+struct ContactSpec {
+  bool given = false;  ///< the file has a "contact" section
+  /// m, > 0: candidates within this distance are contacts of the step
+  double distance = contact::ContactOptions{}.contact_distance;
+  bool mesh_contact = false;  ///< resolved: the file's value, else (number of bodies >= 2)
+  bool self_contact = contact::ContactOptions{}.self_contact;
+  double friction = contact::ContactOptions{}.mesh_friction;              ///< mesh-mesh mu >= 0
+  double restitution = contact::ContactOptions{}.mesh_restitution;        ///< mesh-mesh, in [0, 1]
+  double ncp_tolerance = contact::ContactOptions{}.ncp_tolerance;         ///< m, > 0
+  int ncp_max_iterations = contact::ContactOptions{}.ncp_max_iterations;  ///< >= 1
+  double penetration_tolerance = contact::ContactOptions{}.penetration_tolerance;  ///< m, > 0
+  int max_redetections = contact::ContactOptions{}.max_redetections;               ///< >= 0
+  double restitution_threshold = contact::ContactOptions{}.restitution_threshold;  ///< m/s, >= 0
+  contact::ContactOptions::Delassus delassus = contact::ContactOptions{}.delassus;
 };
 
 /// \brief Solver configuration. Defaults follow the paper (Sec. 4.3, 4.5, 5).
@@ -313,7 +393,13 @@ struct OutputSpec {
 struct SceneSpec {
   std::string file;  ///< the scene file as given to load_scene
   std::string description;
+  /// The first body (the whole mesh of a single-body scene). Builders read body 0 from here.
   MeshSpec mesh;
+  /// Every body in file order, body 0 first (bodies[0] is a copy of `mesh`; size 1 for a single
+  /// "mesh" object). The bodies are merged into one mesh: build_multibody_mesh().
+  std::vector<MeshSpec> bodies;
+  /// One per body: the mesh object's "name", else "mesh" (a single object) or "mesh[i]".
+  std::vector<std::string> body_names;
   Material default_material;        ///< region label 0
   std::vector<RegionSpec> regions;  ///< applied in order over the default material
   ContrastSpec contrast;
@@ -321,12 +407,61 @@ struct SceneSpec {
   std::vector<DriverSpec> drivers;
   VectorX gravity;  ///< m/s^2, dimension entries (zero by default)
   std::vector<ForceSpec> forces;
+  /// The object form of "initial_velocity" (every vertex, about the centre of mass of the whole
+  /// scene); zero when the file gives the per-body (array) form.
   InitialVelocitySpec initial_velocity;
+  /// The per-body form: at most one entry per body, each about that body's centre of mass.
+  std::vector<InitialVelocitySpec> body_velocities;
   double h = 1.0 / 60.0;  ///< s, the time step of one solver step, > 0
   SolverSpec solver;
   OutputSpec output;
   MuscleSpec muscles;  ///< empty when the file has no "muscles" section
+  std::vector<SceneCollider> colliders;  ///< "colliders", in file order (empty: none)
+  ContactSpec contact;                   ///< "contact" (defaults when not given)
 };
+
+/// \brief The number of bodies of a scene (>= 1; a hand-made SceneSpec with `bodies` empty has
+/// one, `mesh`).
+inline int num_bodies(const SceneSpec& scene) {
+  return std::max<int>(1, static_cast<int>(scene.bodies.size()));
+}
+
+/// \brief The mesh of body b: `mesh` for body 0, `bodies[b]` for the others.
+inline const MeshSpec& body_mesh(const SceneSpec& scene, int b) {
+  return b == 0 ? scene.mesh : scene.bodies.at(static_cast<size_t>(b));
+}
+
+/// \brief The name of body b ("mesh" when the SceneSpec has no names).
+inline std::string body_name(const SceneSpec& scene, int b) {
+  return static_cast<size_t>(b) < scene.body_names.size() ? scene.body_names[b]
+         : b == 0                                         ? std::string("mesh")
+                                                          : "mesh[" + std::to_string(b) + "]";
+}
+
+/// \brief True when the scene needs the contact model: it has colliders, or two or more bodies
+/// with mesh_contact, or self_contact.
+inline bool has_contact(const SceneSpec& scene) {
+  return !scene.colliders.empty() || (num_bodies(scene) >= 2 && scene.contact.mesh_contact) ||
+         scene.contact.self_contact;
+}
+
+/// \brief The contact options of the scene's "contact" section (defaults where not given).
+inline contact::ContactOptions contact_options(const SceneSpec& scene) {
+  const ContactSpec& c = scene.contact;
+  contact::ContactOptions o;
+  o.contact_distance = c.distance;
+  o.mesh_contact = c.mesh_contact;
+  o.self_contact = c.self_contact;
+  o.mesh_friction = c.friction;
+  o.mesh_restitution = c.restitution;
+  o.ncp_tolerance = c.ncp_tolerance;
+  o.ncp_max_iterations = c.ncp_max_iterations;
+  o.penetration_tolerance = c.penetration_tolerance;
+  o.max_redetections = c.max_redetections;
+  o.restitution_threshold = c.restitution_threshold;
+  o.delassus = c.delassus;
+  return o;
+}
 
 // ---------------------------------------------------------------------------------------------
 // Parsing
@@ -389,6 +524,11 @@ class Parser {
   /// Checks that j is an object whose keys are all in `allowed` (plus "comment").
   void expect_object(const json& j, const std::string& path,
                      std::initializer_list<const char*> allowed) const {
+    expect_keys(j, path, std::vector<const char*>(allowed));
+  }
+  /// expect_object with a list built at run time.
+  void expect_keys(const json& j, const std::string& path,
+                   const std::vector<const char*>& allowed) const {
     if (!j.is_object()) fail(path, "expected an object, found " + type_of(j));
     for (auto it = j.begin(); it != j.end(); ++it) {
       const std::string& key = it.key();
@@ -561,31 +701,98 @@ inline std::vector<Index> parse_indices(const Parser& p, const json& j, const st
   return out;
 }
 
-/// The one key among `keys` that obj holds; fails when none or several are given.
-inline std::string one_of(const Parser& p, const json& obj, const std::string& path,
-                          std::initializer_list<const char*> keys) {
-  std::string found, list;
+/// The one key among `keys` that obj holds; fails when several are given, and when none is
+/// given unless `optional` (then "" is returned). `list` names the keys in the "give one of"
+/// message (default: `keys`).
+inline std::string one_of_keys(const Parser& p, const json& obj, const std::string& path,
+                               const std::vector<const char*>& keys, bool optional = false,
+                               const std::vector<const char*>& list = {}) {
+  std::string found, names;
+  for (const char* k : list.empty() ? keys : list)
+    names += std::string(names.empty() ? "" : ", ") + "\"" + k + "\"";
   for (const char* k : keys) {
-    list += std::string(list.empty() ? "" : ", ") + "\"" + k + "\"";
     if (obj.contains(k)) {
       if (!found.empty())
         p.fail(path, "give only one of " + std::string("\"") + found + "\" and \"" + k + "\"");
       found = k;
     }
   }
-  if (found.empty()) p.fail(path, "give one of " + list);
+  if (found.empty() && !optional) p.fail(path, "give one of " + names);
   return found;
 }
 
+/// The one key among `keys` that obj holds; fails when none or several are given.
+inline std::string one_of(const Parser& p, const json& obj, const std::string& path,
+                          std::initializer_list<const char*> keys) {
+  return one_of_keys(p, obj, path, std::vector<const char*>(keys));
+}
+
+/// The bodies of a scene as selectors see them: their names in order (body i is names[i]).
+/// Empty where bodies are unknown (task files): there "body" is not an allowed key.
+using BodyList = std::vector<std::string>;
+
+/// The body that j (at path) names: an index in [0, #bodies) or a body's name.
+inline int parse_body(const Parser& p, const json& j, const std::string& path,
+                      const BodyList& bodies) {
+  const int n = static_cast<int>(bodies.size());
+  auto known = [&] {
+    std::string k;
+    for (int b = 0; b < n; ++b) k += (b ? ", " : "") + std::to_string(b) + " \"" + bodies[b] + "\"";
+    return k;
+  };
+  if (j.is_string()) {
+    const std::string name = j.get<std::string>();
+    for (int b = 0; b < n; ++b)
+      if (bodies[b] == name) return b;
+    std::string msg = "no body is named \"" + name + "\"";
+    std::string best;
+    size_t best_d = std::numeric_limits<size_t>::max();
+    for (const std::string& b : bodies) {
+      const size_t d = edit_distance(name, b);
+      if (d < best_d) best_d = d, best = b;
+    }
+    if (!best.empty() && best_d <= std::max<size_t>(2, name.size() / 3))
+      msg += " (did you mean \"" + best + "\"?)";
+    p.fail(path, msg + "; the scene's bodies are " + known());
+  }
+  if (!j.is_number()) p.fail(path, "expected a body index or name, found " + type_of(j));
+  const long b = p.integer(j, path);
+  if (b < 0 || b >= n)
+    p.fail(path, "body " + std::to_string(b) + " does not exist: the scene has " +
+                     std::to_string(n) + (n == 1 ? " body (" : " bodies (") + known() + ")");
+  return static_cast<int>(b);
+}
+
+/// obj["vertices"] (at parent.vertices): exactly one of "indices", "box", "slab", or "body"
+/// alone or with one of "box", "slab" (the box or slab restricted to the body). `bodies`: the
+/// scene's bodies (empty: "body" is not allowed).
 inline VertexSelector parse_selector(const Parser& p, const json& obj, const std::string& parent,
-                                     int dim) {
+                                     int dim, const BodyList& bodies = {}) {
   const std::string path = child(parent, "vertices");
   const json& j = p.required(obj, parent, "vertices");
-  p.expect_object(j, path, {"indices", "box", "slab"});
+  std::vector<const char*> keys = {"indices", "box", "slab"};
+  if (!bodies.empty()) keys.push_back("body");
+  p.expect_keys(j, path, keys);
   VertexSelector s;
   s.scene_file = p.file();
   s.json_path = path;
-  const std::string k = one_of(p, j, path, {"indices", "box", "slab"});
+  s.num_bodies = std::max<int>(1, static_cast<int>(bodies.size()));
+  std::string k;
+  if (!bodies.empty() && j.contains("body")) {
+    s.body = parse_body(p, j.at("body"), child(path, "body"), bodies);
+    s.body_name = bodies[s.body];
+    if (j.contains("indices"))
+      p.fail(path,
+             "\"indices\" (vertex numbers of the whole mesh) do not combine with \"body\"; "
+             "give \"body\" alone, with \"box\" or with \"slab\"");
+    k = one_of_keys(p, j, path, {"box", "slab"}, /*optional=*/true);
+    if (k.empty()) {
+      s.kind = VertexSelector::Kind::Body;
+      return s;
+    }
+  } else {
+    k = one_of_keys(p, j, path, {"indices", "box", "slab"}, false, keys);
+  }
   if (k == "indices") {
     s.kind = VertexSelector::Kind::Indices;
     s.indices = parse_indices(p, j.at(k), child(path, k));
@@ -600,12 +807,32 @@ inline VertexSelector parse_selector(const Parser& p, const json& obj, const std
 }
 
 /// The element selection of obj (a region or a muscle group at `path`): exactly one of
-/// "elements", "box", "slab", "mesh_region".
+/// "elements", "box", "slab", "mesh_region", or "body" alone or with one of "box", "slab",
+/// "mesh_region" (restricted to the body). `bodies`: the scene's bodies (empty: no "body").
 inline ElementSelector parse_element_selector(const Parser& p, const json& obj,
-                                              const std::string& path, int dim) {
+                                              const std::string& path, int dim,
+                                              const BodyList& bodies = {}) {
   ElementSelector sel;
   sel.json_path = path;
-  const std::string k = one_of(p, obj, path, {"elements", "box", "slab", "mesh_region"});
+  sel.num_bodies = std::max<int>(1, static_cast<int>(bodies.size()));
+  std::vector<const char*> keys = {"elements", "box", "slab", "mesh_region"};
+  if (!bodies.empty()) keys.push_back("body");
+  std::string k;
+  if (!bodies.empty() && obj.contains("body")) {
+    sel.body = parse_body(p, obj.at("body"), child(path, "body"), bodies);
+    sel.body_name = bodies[sel.body];
+    if (obj.contains("elements"))
+      p.fail(path,
+             "\"elements\" (element numbers of the whole mesh) do not combine with "
+             "\"body\"; give \"body\" alone, with \"box\", \"slab\" or \"mesh_region\"");
+    k = one_of_keys(p, obj, path, {"box", "slab", "mesh_region"}, /*optional=*/true);
+    if (k.empty()) {
+      sel.kind = ElementSelector::Kind::Body;
+      return sel;
+    }
+  } else {
+    k = one_of_keys(p, obj, path, {"elements", "box", "slab", "mesh_region"}, false, keys);
+  }
   if (k == "elements") {
     sel.kind = ElementSelector::Kind::Elements;
     sel.elements = parse_indices(p, obj.at(k), child(path, k));
@@ -623,7 +850,8 @@ inline ElementSelector parse_element_selector(const Parser& p, const json& obj,
 }
 
 /// The "muscles" section (see MuscleSpec); per_axis names the fibre's expected length.
-inline MuscleSpec parse_muscles(const Parser& p, const json& j, int dim, const char* per_axis) {
+inline MuscleSpec parse_muscles(const Parser& p, const json& j, int dim, const char* per_axis,
+                                const BodyList& bodies = {}) {
   const std::string path = "muscles";
   p.expect_object(j, path, {"stiffness", "groups"});
   MuscleSpec m;
@@ -637,9 +865,10 @@ inline MuscleSpec parse_muscles(const Parser& p, const json& j, int dim, const c
   for (size_t i = 0; i < gs.size(); ++i) {
     const std::string gp = item("muscles.groups", i);
     const json& g = gs[i];
-    p.expect_object(
-        g, gp,
-        {"name", "elements", "box", "slab", "mesh_region", "fibre", "stiffness", "activation"});
+    std::vector<const char*> keys = {"name",        "elements", "box",       "slab",
+                                     "mesh_region", "fibre",    "stiffness", "activation"};
+    if (!bodies.empty()) keys.push_back("body");
+    p.expect_keys(g, gp, keys);
     MuscleGroupSpec grp;
     grp.json_path = gp;
     grp.name = g.contains("name") ? p.string(g.at("name"), child(gp, "name")) : gp;
@@ -648,7 +877,7 @@ inline MuscleSpec parse_muscles(const Parser& p, const json& j, int dim, const c
     if (!inserted)
       p.fail(child(gp, "name"),
              "muscle group name \"" + grp.name + "\" is used twice (also " + it->second + ")");
-    grp.elements = parse_element_selector(p, g, gp, dim);
+    grp.elements = parse_element_selector(p, g, gp, dim, bodies);
     grp.fibre = p.vector(p.required(g, gp, "fibre"), child(gp, "fibre"), dim, per_axis);
     const double n = grp.fibre.norm();
     if (!(n > 0)) p.fail(child(gp, "fibre"), "must not be the zero vector");
@@ -678,14 +907,15 @@ inline void parse_window(const Parser& p, const json& j, const std::string& path
            "must be > start = " + format_number(start) + ", found " + format_number(stop));
 }
 
-inline MeshSpec parse_mesh(const Parser& p, const json& root) {
-  const std::string path = "mesh";
-  const json& j = p.required(root, "", "mesh");
+/// One mesh object (the single "mesh" object, or one body "mesh[i]" of an array) at `path`.
+inline MeshSpec parse_mesh_object(const Parser& p, const json& j, const std::string& path) {
   if (!j.is_object()) p.fail(path, "expected an object, found " + type_of(j));
   MeshSpec m;
+  m.json_path = path;
   const std::string k = one_of(p, j, path, {"file", "generator"});
   auto common = [&](std::initializer_list<const char*> keys) {
     std::vector<const char*> all(keys);
+    all.push_back("name");
     all.push_back("scale");
     all.push_back("translate");
     all.push_back(k == "file" ? "file" : "generator");
@@ -702,7 +932,7 @@ inline MeshSpec parse_mesh(const Parser& p, const json& root) {
         const size_t d = edit_distance(it.key(), a);
         if (d < best_d) best_d = d, best = a;
       }
-      std::string msg = "unknown key \"" + it.key() + "\" in mesh";
+      std::string msg = "unknown key \"" + it.key() + "\" in " + path;
       if (best_d <= std::max<size_t>(2, it.key().size() / 3))
         msg += " (did you mean \"" + best + "\"?)";
       else {
@@ -725,7 +955,7 @@ inline MeshSpec parse_mesh(const Parser& p, const json& root) {
   };
   if (k == "file") {
     common({});
-    const std::string given = p.string(j.at("file"), "mesh.file");
+    const std::string given = p.string(j.at("file"), child(path, "file"));
     namespace fs = std::filesystem;
     fs::path resolved = fs::path(given);
     if (resolved.is_relative()) resolved = fs::path(p.file()).parent_path() / resolved;
@@ -736,22 +966,22 @@ inline MeshSpec parse_mesh(const Parser& p, const json& root) {
     std::string probe = m.file;
     if (ext == ".node" || ext == ".ele") probe = detail::strip_extension(m.file) + ".node";
     if (!fs::is_regular_file(probe, ec))
-      p.fail("mesh.file", "mesh file not found: " + probe + " (resolved from \"" + given +
-                              "\" relative to the scene file's folder)");
+      p.fail(child(path, "file"), "mesh file not found: " + probe + " (resolved from \"" + given +
+                                      "\" relative to the scene file's folder)");
     if (ext == ".node" || ext == ".ele") {
       const std::string ele = detail::strip_extension(m.file) + ".ele";
-      if (!fs::is_regular_file(ele, ec)) p.fail("mesh.file", "mesh file not found: " + ele);
+      if (!fs::is_regular_file(ele, ec)) p.fail(child(path, "file"), "mesh file not found: " + ele);
     } else if (ext != ".msh") {
-      p.fail("mesh.file",
+      p.fail(child(path, "file"),
              "unknown mesh file extension \"" + ext + "\" (expected .node, .ele or .msh)");
     }
     try {
       m.dimension = mesh_dimension(m.file);
     } catch (const InputError& e) {
-      p.fail("mesh.file", e.what());
+      p.fail(child(path, "file"), e.what());
     }
   } else {
-    const std::string g = p.string(j.at("generator"), "mesh.generator");
+    const std::string g = p.string(j.at("generator"), child(path, "generator"));
     if (g == "box") {
       common({"lo", "hi", "cells"});
       m.kind = MeshSpec::Kind::Box;
@@ -784,8 +1014,9 @@ inline MeshSpec parse_mesh(const Parser& p, const json& root) {
       m.major_radius = length("major_radius");
       m.minor_radius = length("minor_radius");
       if (!(m.major_radius > m.minor_radius))
-        p.fail("mesh.major_radius", "must be > minor_radius = " + format_number(m.minor_radius) +
-                                        ", found " + format_number(m.major_radius));
+        p.fail(child(path, "major_radius"),
+               "must be > minor_radius = " + format_number(m.minor_radius) + ", found " +
+                   format_number(m.major_radius));
       m.ring_segments = count("ring_segments", 3);
       m.tube_resolution = count("tube_resolution", 1);
     } else if (g == "branching") {
@@ -795,85 +1026,252 @@ inline MeshSpec parse_mesh(const Parser& p, const json& root) {
       PlantParams& q = m.plant;
       const PlantParams d;
       q.trunk_length = p.number(j, path, "trunk_length", d.trunk_length);
-      p.positive(q.trunk_length, "mesh.trunk_length");
+      p.positive(q.trunk_length, child(path, "trunk_length"));
       q.trunk_radius = p.number(j, path, "trunk_radius", d.trunk_radius);
-      p.positive(q.trunk_radius, "mesh.trunk_radius");
+      p.positive(q.trunk_radius, child(path, "trunk_radius"));
       q.levels = static_cast<int>(p.integer(j, path, "levels", d.levels));
       if (q.levels < 1 || q.levels > 3)
-        p.fail("mesh.levels", "must be 1, 2 or 3, found " + std::to_string(q.levels));
+        p.fail(child(path, "levels"), "must be 1, 2 or 3, found " + std::to_string(q.levels));
       q.branches = static_cast<int>(p.integer(j, path, "branches", d.branches));
       if (q.branches != 2 && q.branches != 3)
-        p.fail("mesh.branches", "must be 2 or 3, found " + std::to_string(q.branches));
+        p.fail(child(path, "branches"), "must be 2 or 3, found " + std::to_string(q.branches));
       q.length_ratio = p.number(j, path, "length_ratio", d.length_ratio);
       if (!(q.length_ratio > 0 && q.length_ratio <= 1))
-        p.fail("mesh.length_ratio", "must lie in (0, 1], found " + format_number(q.length_ratio));
+        p.fail(child(path, "length_ratio"),
+               "must lie in (0, 1], found " + format_number(q.length_ratio));
       q.radius_ratio = p.number(j, path, "radius_ratio", d.radius_ratio);
       if (!(q.radius_ratio > 0 && q.radius_ratio <= 1))
-        p.fail("mesh.radius_ratio", "must lie in (0, 1], found " + format_number(q.radius_ratio));
+        p.fail(child(path, "radius_ratio"),
+               "must lie in (0, 1], found " + format_number(q.radius_ratio));
       q.branch_angle = p.number(j, path, "branch_angle", d.branch_angle);
       if (!(q.branch_angle > 0 && q.branch_angle <= 90))
-        p.fail("mesh.branch_angle",
+        p.fail(child(path, "branch_angle"),
                "must lie in (0, 90] degrees, found " + format_number(q.branch_angle));
       q.cell_size = p.number(j, path, "cell_size", d.cell_size);
-      p.positive(q.cell_size, "mesh.cell_size");
+      p.positive(q.cell_size, child(path, "cell_size"));
       try {
         plant_branches(q);  // radius >= cell_size for every level
       } catch (const InputError& e) {
-        p.fail("mesh", e.what());
+        p.fail(path, e.what());
       }
     } else {
-      p.fail("mesh.generator", "unknown generator \"" + g +
-                                   "\" (expected \"box\", \"bar\", \"rectangle\", \"sheet\", "
-                                   "\"sphere\", \"torus\" or \"branching\")");
+      p.fail(child(path, "generator"),
+             "unknown generator \"" + g +
+                 "\" (expected \"box\", \"bar\", \"rectangle\", \"sheet\", "
+                 "\"sphere\", \"torus\" or \"branching\")");
     }
     if (m.kind == MeshSpec::Kind::Box || m.kind == MeshSpec::Kind::Rectangle) {
       const int d = m.dimension;
       const char* why = d == 3 ? "a box is 3D" : "a rectangle is 2D";
-      m.lo = p.vector(p.required(j, path, "lo"), "mesh.lo", d, why);
-      m.hi = p.vector(p.required(j, path, "hi"), "mesh.hi", d, why);
+      m.lo = p.vector(p.required(j, path, "lo"), child(path, "lo"), d, why);
+      m.hi = p.vector(p.required(j, path, "hi"), child(path, "hi"), d, why);
       for (int a = 0; a < d; ++a)
         if (!(m.hi[a] > m.lo[a]))
-          p.fail(item("mesh.hi", a), "must be > lo[" + std::to_string(a) +
-                                         "] = " + format_number(m.lo[a]) + ", found " +
-                                         format_number(m.hi[a]));
+          p.fail(item(child(path, "hi"), a), "must be > lo[" + std::to_string(a) +
+                                                 "] = " + format_number(m.lo[a]) + ", found " +
+                                                 format_number(m.hi[a]));
     }
     if (m.kind == MeshSpec::Kind::Box || m.kind == MeshSpec::Kind::Rectangle ||
         m.kind == MeshSpec::Kind::Sheet) {
       const int n = m.kind == MeshSpec::Kind::Box ? 3 : 2;
-      const json& c = p.array(p.required(j, path, "cells"), "mesh.cells");
+      const json& c = p.array(p.required(j, path, "cells"), child(path, "cells"));
       if (static_cast<int>(c.size()) != n)
-        p.fail("mesh.cells",
+        p.fail(child(path, "cells"),
                "expected " + std::to_string(n) + " cell counts, found " + std::to_string(c.size()));
       m.cells.resize(n);
       for (int a = 0; a < n; ++a) {
-        const long v = p.integer(c[a], item("mesh.cells", a));
-        p.at_least(v, 1, item("mesh.cells", a));
+        const long v = p.integer(c[a], item(child(path, "cells"), a));
+        p.at_least(v, 1, item(child(path, "cells"), a));
         m.cells[a] = static_cast<int>(v);
       }
     }
   }
   m.scale = p.number(j, path, "scale", 1.0);
-  p.positive(m.scale, "mesh.scale");
+  p.positive(m.scale, child(path, "scale"));
   m.translate = j.contains("translate")
-                    ? p.vector(j.at("translate"), "mesh.translate", m.dimension,
+                    ? p.vector(j.at("translate"), child(path, "translate"), m.dimension,
                                m.dimension == 3 ? "the mesh is 3D" : "the mesh is 2D")
                     : VectorX::Zero(m.dimension);
   return m;
 }
 
+/// The single "mesh" object of a scene (parse_bodies reads the array form too).
+inline MeshSpec parse_mesh(const Parser& p, const json& root) {
+  return parse_mesh_object(p, p.required(root, "", "mesh"), "mesh");
+}
+
+/// "mesh": one object (one body) or an array of mesh objects (the bodies, in order), all of
+/// one dimension. Fills s.mesh (body 0), s.bodies and s.body_names (unique, non-empty).
+inline void parse_bodies(const Parser& p, const json& root, SceneSpec& s) {
+  const json& j = p.required(root, "", "mesh");
+  std::vector<std::pair<const json*, std::string>> objects;
+  if (j.is_array()) {
+    if (j.empty()) p.fail("mesh", "the list of bodies is empty");
+    for (size_t i = 0; i < j.size(); ++i) objects.emplace_back(&j[i], item("mesh", i));
+  } else if (j.is_object()) {
+    objects.emplace_back(&j, "mesh");
+  } else {
+    p.fail("mesh",
+           "expected an object (one body) or an array of objects (several bodies), "
+           "found " +
+               type_of(j));
+  }
+  std::map<std::string, std::string> names;  // name -> JSON path
+  for (const auto& [obj, path] : objects) {
+    MeshSpec m = parse_mesh_object(p, *obj, path);
+    if (!s.bodies.empty() && m.dimension != s.bodies[0].dimension)
+      p.fail(path, "is a " + std::to_string(m.dimension) + "D mesh but mesh[0] is " +
+                       std::to_string(s.bodies[0].dimension) +
+                       "D: all bodies must have the same dimension");
+    std::string name = path;
+    if (obj->contains("name")) {
+      name = p.string(obj->at("name"), child(path, "name"));
+      if (name.empty()) p.fail(child(path, "name"), "must not be empty");
+    }
+    const auto [it, inserted] = names.emplace(name, path);
+    if (!inserted)
+      p.fail(obj->contains("name") ? child(path, "name") : path,
+             "body name \"" + name + "\" is used twice (also " + it->second + ")");
+    s.bodies.push_back(std::move(m));
+    s.body_names.push_back(std::move(name));
+  }
+  s.mesh = s.bodies[0];
+}
+
+/// The "colliders" array (see SceneCollider).
+inline std::vector<SceneCollider> parse_colliders(const Parser& p, const json& j, int dim) {
+  const char* per_axis = dim == 3 ? "one per axis of a 3D scene" : "one per axis of a 2D scene";
+  const json& cs = p.array(j, "colliders");
+  std::vector<SceneCollider> out;
+  std::map<std::string, std::string> names;  // name -> JSON path
+  for (size_t i = 0; i < cs.size(); ++i) {
+    const std::string path = item("colliders", i);
+    const json& c = cs[i];
+    if (!c.is_object()) p.fail(path, "expected an object, found " + type_of(c));
+    const std::string type = p.string(p.required(c, path, "type"), child(path, "type"));
+    SceneCollider col;
+    col.json_path = path;
+    std::vector<const char*> keys = {"type",     "name",  "friction", "restitution",
+                                     "velocity", "start", "stop"};
+    if (type == "half-space") {
+      col.kind = SceneCollider::Kind::HalfSpace;
+      keys.insert(keys.end(), {"point", "normal"});
+    } else if (type == "sphere") {
+      col.kind = SceneCollider::Kind::Sphere;
+      keys.insert(keys.end(), {"center", "radius"});
+    } else if (type == "box") {
+      col.kind = SceneCollider::Kind::Box;
+      keys.insert(keys.end(), {"center", "half_extents"});
+    } else {
+      p.fail(child(path, "type"), "unknown collider type \"" + type +
+                                      "\" (expected \"half-space\", \"sphere\" or \"box\")");
+    }
+    p.expect_keys(c, path, keys);
+    col.name = c.contains("name") ? p.string(c.at("name"), child(path, "name")) : path;
+    if (col.name.empty()) p.fail(child(path, "name"), "must not be empty");
+    const auto [it, inserted] = names.emplace(col.name, path);
+    if (!inserted)
+      p.fail(child(path, "name"),
+             "collider name \"" + col.name + "\" is used twice (also " + it->second + ")");
+    auto vec = [&](const char* key) {
+      return p.vector(p.required(c, path, key), child(path, key), dim, per_axis);
+    };
+    col.normal = VectorX::Zero(dim);
+    col.half_extents = VectorX::Zero(dim);
+    if (col.kind == SceneCollider::Kind::HalfSpace) {
+      col.point = vec("point");
+      col.normal = vec("normal");
+      const double n = col.normal.norm();
+      if (!(n > 0)) p.fail(child(path, "normal"), "must not be the zero vector");
+      col.normal /= n;
+    } else {
+      col.point = vec("center");
+      if (col.kind == SceneCollider::Kind::Sphere) {
+        col.radius = p.number(c, path, "radius");
+        p.positive(col.radius, child(path, "radius"));
+      } else {
+        col.half_extents = vec("half_extents");
+        for (int d = 0; d < dim; ++d)
+          p.positive(col.half_extents[d], item(child(path, "half_extents"), d));
+      }
+    }
+    col.friction = p.number(c, path, "friction", 0.0);
+    p.non_negative(col.friction, child(path, "friction"));
+    col.restitution = p.number(c, path, "restitution", 0.0);
+    if (!(col.restitution >= 0 && col.restitution <= 1))
+      p.fail(child(path, "restitution"),
+             "must lie in [0, 1], found " + format_number(col.restitution));
+    col.velocity = c.contains("velocity") ? vec("velocity") : VectorX::Zero(dim);
+    parse_window(p, c, path, col.start, col.stop);
+    out.push_back(std::move(col));
+  }
+  return out;
+}
+
+/// The "contact" section (see ContactSpec); bodies: the number of bodies (mesh_contact's
+/// default is bodies >= 2).
+inline ContactSpec parse_contact(const Parser& p, const json& root, int bodies) {
+  ContactSpec c;
+  c.mesh_contact = bodies >= 2;
+  if (!root.contains("contact")) return c;
+  const std::string path = "contact";
+  const json& j = root.at("contact");
+  p.expect_object(j, path,
+                  {"distance", "mesh_contact", "self_contact", "friction", "restitution",
+                   "ncp_tolerance", "ncp_max_iterations", "penetration_tolerance",
+                   "max_redetections", "restitution_threshold", "delassus"});
+  c.given = true;
+  c.distance = p.number(j, path, "distance", c.distance);
+  p.positive(c.distance, "contact.distance");
+  c.mesh_contact = p.boolean(j, path, "mesh_contact", c.mesh_contact);
+  c.self_contact = p.boolean(j, path, "self_contact", c.self_contact);
+  c.friction = p.number(j, path, "friction", c.friction);
+  p.non_negative(c.friction, "contact.friction");
+  c.restitution = p.number(j, path, "restitution", c.restitution);
+  if (!(c.restitution >= 0 && c.restitution <= 1))
+    p.fail("contact.restitution", "must lie in [0, 1], found " + format_number(c.restitution));
+  c.ncp_tolerance = p.number(j, path, "ncp_tolerance", c.ncp_tolerance);
+  p.positive(c.ncp_tolerance, "contact.ncp_tolerance");
+  const long it = p.integer(j, path, "ncp_max_iterations", c.ncp_max_iterations);
+  p.at_least(it, 1, "contact.ncp_max_iterations");
+  c.ncp_max_iterations = static_cast<int>(std::min<long>(it, 1'000'000'000));
+  c.penetration_tolerance = p.number(j, path, "penetration_tolerance", c.penetration_tolerance);
+  p.positive(c.penetration_tolerance, "contact.penetration_tolerance");
+  const long r = p.integer(j, path, "max_redetections", c.max_redetections);
+  p.at_least(r, 0, "contact.max_redetections");
+  c.max_redetections = static_cast<int>(std::min<long>(r, 1'000'000));
+  c.restitution_threshold = p.number(j, path, "restitution_threshold", c.restitution_threshold);
+  p.non_negative(c.restitution_threshold, "contact.restitution_threshold");
+  if (j.contains("delassus")) {
+    using D = contact::ContactOptions::Delassus;
+    const std::string d = p.string(j.at("delassus"), "contact.delassus");
+    if (d == "auto")
+      c.delassus = D::Auto;
+    else if (d == "solves")
+      c.delassus = D::Solves;
+    else if (d == "inverse-factor")
+      c.delassus = D::InverseFactor;
+    else
+      p.fail("contact.delassus", "unknown Delassus method \"" + d +
+                                     "\" (expected \"auto\", \"solves\" or \"inverse-factor\")");
+  }
+  return c;
+}
+
 inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> contrast) {
-  p.expect_object(
-      root, "",
-      {"name", "description", "mesh", "material", "regions", "contrast", "fixed", "drivers",
-       "gravity", "forces", "initial_velocity", "time", "solver", "muscles"});
+  p.expect_object(root, "",
+                  {"name", "description", "mesh", "material", "regions", "contrast", "fixed",
+                   "drivers", "gravity", "forces", "initial_velocity", "time", "solver", "muscles",
+                   "colliders", "contact"});
   SceneSpec s;
   s.file = p.file();
   s.output.name = root.contains("name") ? p.string(root.at("name"), "name")
                                         : std::filesystem::path(p.file()).stem().string();
   if (root.contains("description")) s.description = p.string(root.at("description"), "description");
 
-  s.mesh = parse_mesh(p, root);
+  parse_bodies(p, root, s);
   const int dim = s.mesh.dimension;
+  const BodyList& bodies = s.body_names;
   const char* per_axis = dim == 3 ? "one per axis of a 3D scene" : "one per axis of a 2D scene";
 
   // Materials and regions.
@@ -885,7 +1283,8 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
     for (size_t i = 0; i < rs.size(); ++i) {
       const std::string path = item("regions", i);
       const json& r = rs[i];
-      p.expect_object(r, path, {"name", "elements", "box", "slab", "mesh_region", "material"});
+      p.expect_object(r, path,
+                      {"name", "elements", "box", "slab", "mesh_region", "body", "material"});
       RegionSpec reg;
       reg.json_path = path;
       reg.name = r.contains("name") ? p.string(r.at("name"), child(path, "name")) : path;
@@ -894,12 +1293,15 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
         p.fail(child(path, "name"), "\"default\" names the default material; choose another");
       if (!names.insert(reg.name).second)
         p.fail(child(path, "name"), "region name \"" + reg.name + "\" is used twice");
-      const ElementSelector sel = parse_element_selector(p, r, path, dim);
+      const ElementSelector sel = parse_element_selector(p, r, path, dim, bodies);
       reg.kind = sel.kind;
       reg.elements = sel.elements;
       reg.box = sel.box;
       reg.slab = sel.slab;
       reg.mesh_region = sel.mesh_region;
+      reg.body = sel.body;
+      reg.body_name = sel.body_name;
+      reg.num_bodies = sel.num_bodies;
       reg.material = s.default_material;
       parse_material(p, p.required(r, path, "material"), child(path, "material"), reg.material,
                      false);
@@ -962,7 +1364,7 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
       const std::string path = item("fixed", i);
       p.expect_object(fs[i], path, {"vertices", "axes"});
       FixSpec f;
-      f.vertices = parse_selector(p, fs[i], path, dim);
+      f.vertices = parse_selector(p, fs[i], path, dim, bodies);
       if (fs[i].contains("axes")) {
         const std::string ap = child(path, "axes");
         const json& a = p.array(fs[i].at("axes"), ap);
@@ -1011,7 +1413,7 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
         p.fail(child(path, "type"),
                "unknown driver type \"" + type + "\" (expected \"twist\" or \"pull\")");
       }
-      dr.vertices = parse_selector(p, d, path, dim);
+      dr.vertices = parse_selector(p, d, path, dim, bodies);
       parse_window(p, d, path, dr.start, dr.stop);
       dr.release_at_stop = p.boolean(d, path, "release_at_stop", false);
       s.drivers.push_back(std::move(dr));
@@ -1028,7 +1430,7 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
       p.expect_object(fs[i], path, {"vertices", "force", "total_force", "start", "stop"});
       ForceSpec f;
       f.json_path = path;
-      f.vertices = parse_selector(p, fs[i], path, dim);
+      f.vertices = parse_selector(p, fs[i], path, dim, bodies);
       const std::string k = one_of(p, fs[i], path, {"force", "total_force"});
       f.total = k == "total_force";
       f.force = p.vector(fs[i].at(k), child(path, k), dim, per_axis);
@@ -1038,18 +1440,51 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
   }
   s.initial_velocity.linear = VectorX::Zero(dim);
   s.initial_velocity.angular = VectorX::Zero(dim == 3 ? 3 : 1);
+  s.initial_velocity.json_path = "initial_velocity";
   if (root.contains("initial_velocity")) {
+    // One object for every vertex ({"linear", "angular"}), or an array of per-body entries
+    // ({"body", "linear", "angular"}); a single object with "body" is a one-entry array.
     const json& v = root.at("initial_velocity");
-    p.expect_object(v, "initial_velocity", {"linear", "angular"});
-    if (v.contains("linear"))
-      s.initial_velocity.linear =
-          p.vector(v.at("linear"), "initial_velocity.linear", dim, per_axis);
-    if (v.contains("angular")) {
-      if (dim == 3)
-        s.initial_velocity.angular =
-            p.vector(v.at("angular"), "initial_velocity.angular", 3, "a 3D angular velocity");
-      else
-        s.initial_velocity.angular[0] = p.number(v.at("angular"), "initial_velocity.angular");
+    auto read = [&](const json& o, const std::string& path, bool per_body) {
+      InitialVelocitySpec iv;
+      iv.json_path = path;
+      iv.linear = VectorX::Zero(dim);
+      iv.angular = VectorX::Zero(dim == 3 ? 3 : 1);
+      if (per_body) {
+        p.expect_object(o, path, {"body", "linear", "angular"});
+        iv.body = parse_body(p, p.required(o, path, "body"), child(path, "body"), bodies);
+      } else {
+        p.expect_object(o, path, {"linear", "angular", "body"});
+      }
+      if (o.contains("linear"))
+        iv.linear = p.vector(o.at("linear"), child(path, "linear"), dim, per_axis);
+      if (o.contains("angular")) {
+        if (dim == 3)
+          iv.angular =
+              p.vector(o.at("angular"), child(path, "angular"), 3, "a 3D angular velocity");
+        else
+          iv.angular[0] = p.number(o.at("angular"), child(path, "angular"));
+      }
+      return iv;
+    };
+    if (v.is_array()) {
+      std::map<int, std::string> seen;  // body -> JSON path
+      for (size_t i = 0; i < v.size(); ++i) {
+        const std::string path = item("initial_velocity", i);
+        InitialVelocitySpec iv = read(v[i], path, true);
+        const auto [it, inserted] = seen.emplace(iv.body, path);
+        if (!inserted)
+          p.fail(child(path, "body"), "body \"" + bodies[iv.body] +
+                                          "\" already has an initial velocity (" + it->second +
+                                          ")");
+        s.body_velocities.push_back(std::move(iv));
+      }
+    } else if (v.is_object() && v.contains("body")) {
+      s.body_velocities.push_back(read(v, "initial_velocity", true));
+    } else {
+      InitialVelocitySpec iv = read(v, "initial_velocity", false);
+      s.initial_velocity.linear = iv.linear;
+      s.initial_velocity.angular = iv.angular;
     }
   }
 
@@ -1133,7 +1568,7 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
 
   // Muscles (after the solver: the energy must have a muscle term, and the other way round).
   if (root.contains("muscles")) {
-    s.muscles = parse_muscles(p, root.at("muscles"), dim, per_axis);
+    s.muscles = parse_muscles(p, root.at("muscles"), dim, per_axis, bodies);
     if (!has_muscle_term(s.solver.energy))
       p.fail("muscles", std::string("solver.energy \"") + to_string(s.solver.energy) +
                             "\" has no muscle term (use \"" +
@@ -1143,6 +1578,9 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
                                 "\" needs a \"muscles\" section (the muscle groups with their "
                                 "fibres and stiffness)");
   }
+
+  if (root.contains("colliders")) s.colliders = parse_colliders(p, root.at("colliders"), dim);
+  s.contact = parse_contact(p, root, num_bodies(s));
   return s;
 }
 
@@ -1236,16 +1674,21 @@ inline int scene_dimension(const SceneSpec& scene) {
   return scene.mesh.dimension;
 }
 
-/// \brief Builds the scene's mesh with its region ids: read from the file (region = the file's
-/// region attribute) or generated (region = the branch level for "branching", 0 otherwise),
-/// then scaled and translated.
+/// \brief Builds body b of the scene (body_mesh(scene, b)) with its region ids: read from the
+/// file (region = the file's region attribute) or generated (region = the branch level for
+/// "branching", 0 otherwise), then scaled and translated.
 /// \tparam Dim must equal scene_dimension(scene)
 /// \return #V by Dim positions, #E elements, #E region ids
-/// \throws InputError naming the scene file (and the mesh file for reader errors)
+/// \throws InputError naming the scene file and the body ("mesh: ..." or "mesh[i]: ...", and
+///   the mesh file for reader errors)
 template <int Dim>
-MeshWithRegions<Dim> build_mesh_with_regions(const SceneSpec& scene) {
+MeshWithRegions<Dim> build_body_mesh(const SceneSpec& scene, int b) {
   scene_detail::check_dimension<Dim>(scene, "build_mesh");
-  const MeshSpec& m = scene.mesh;
+  const MeshSpec& m = body_mesh(scene, b);
+  if (m.dimension != Dim)
+    throw InputError(m.json_path + ": the body is " + std::to_string(m.dimension) + "D in a " +
+                         std::to_string(Dim) + "D scene",
+                     scene.file);
   MeshWithRegions<Dim> out;
   auto set = [&](SimplicialMesh<Dim> mesh, std::vector<int> region = {}) {
     if (region.empty()) region.assign(mesh.num_elements(), 0);
@@ -1286,7 +1729,7 @@ MeshWithRegions<Dim> build_mesh_with_regions(const SceneSpec& scene) {
     }
   } catch (const InputError& e) {
     // Reader errors already name the mesh file and line; add the scene file.
-    throw InputError("mesh: " + std::string(e.what()), scene.file);
+    throw InputError(m.json_path + ": " + std::string(e.what()), scene.file);
   }
   if (m.scale != 1.0 || !m.translate.isZero(0)) {
     VertexMatrix<Dim> X = out.mesh.rest_positions() * m.scale;
@@ -1302,32 +1745,166 @@ MeshWithRegions<Dim> build_mesh_with_regions(const SceneSpec& scene) {
   return out;
 }
 
+/// \brief The scene's bodies merged into one mesh (vertices and elements concatenated in
+/// order, body 0 first), with the body of every vertex and element. The base MeshWithRegions
+/// holds the merged mesh, the concatenated region ids and file vertex numbers (each body's own
+/// numbering), and the union of the Gmsh region names (the first body's name wins on a clash).
+template <int Dim>
+struct MultiBodyMesh : MeshWithRegions<Dim> {
+  std::vector<int> vertex_body;         ///< #V: the body of each vertex
+  std::vector<int> element_body;        ///< #E: the body of each element
+  std::vector<Index> vertex_begin;      ///< #B + 1: body b's vertices are [begin[b], begin[b+1])
+  std::vector<Index> element_begin;     ///< #B + 1: body b's elements are [begin[b], begin[b+1])
+  std::vector<std::string> body_names;  ///< #B
+
+  int num_bodies() const { return static_cast<int>(body_names.size()); }
+  Index num_body_vertices(int b) const { return vertex_begin[b + 1] - vertex_begin[b]; }
+  Index num_body_elements(int b) const { return element_begin[b + 1] - element_begin[b]; }
+};
+
+/// \brief Builds every body (build_body_mesh) and merges them into one mesh; the multi-body
+/// counterpart of build_mesh_with_regions (for one body the mesh, region ids and vertex
+/// numbers are the same as build_mesh_with_regions's).
+/// \tparam Dim must equal scene_dimension(scene)
+/// \throws InputError naming the scene file and the body ("mesh[i]: ...")
+template <int Dim>
+MultiBodyMesh<Dim> build_multibody_mesh(const SceneSpec& scene) {
+  scene_detail::check_dimension<Dim>(scene, "build_multibody_mesh");
+  const int nb = num_bodies(scene);
+  std::vector<MeshWithRegions<Dim>> parts;
+  parts.reserve(nb);
+  for (int b = 0; b < nb; ++b) parts.push_back(build_body_mesh<Dim>(scene, b));
+  MultiBodyMesh<Dim> out;
+  out.vertex_begin.assign(1, 0);
+  out.element_begin.assign(1, 0);
+  for (int b = 0; b < nb; ++b) {
+    out.vertex_begin.push_back(out.vertex_begin.back() + parts[b].mesh.num_vertices());
+    out.element_begin.push_back(out.element_begin.back() + parts[b].mesh.num_elements());
+    out.body_names.push_back(body_name(scene, b));
+  }
+  const Index nv = out.vertex_begin.back(), ne = out.element_begin.back();
+  out.vertex_body.resize(nv);
+  out.element_body.resize(ne);
+  if (nb == 1) {
+    static_cast<MeshWithRegions<Dim>&>(out) = std::move(parts[0]);
+  } else {
+    VertexMatrix<Dim> X(nv, Dim);
+    ElementMatrix<Dim> T(ne, Dim + 1);
+    for (int b = 0; b < nb; ++b) {
+      const SimplicialMesh<Dim>& m = parts[b].mesh;
+      X.middleRows(out.vertex_begin[b], m.num_vertices()) = m.rest_positions();
+      T.middleRows(out.element_begin[b], m.num_elements()) =
+          (m.elements().array() + out.vertex_begin[b]).matrix();
+      out.region.insert(out.region.end(), parts[b].region.begin(), parts[b].region.end());
+      out.vertex_id.insert(out.vertex_id.end(), parts[b].vertex_id.begin(),
+                           parts[b].vertex_id.end());
+      out.region_names.insert(parts[b].region_names.begin(), parts[b].region_names.end());
+    }
+    try {
+      out.mesh = SimplicialMesh<Dim>(std::move(X), std::move(T));
+    } catch (const InputError& e) {
+      throw InputError("mesh: merging the bodies: " + std::string(e.what()), scene.file);
+    }
+  }
+  for (int b = 0; b < nb; ++b) {
+    std::fill(out.vertex_body.begin() + out.vertex_begin[b],
+              out.vertex_body.begin() + out.vertex_begin[b + 1], b);
+    std::fill(out.element_body.begin() + out.element_begin[b],
+              out.element_body.begin() + out.element_begin[b + 1], b);
+  }
+  return out;
+}
+
+/// \brief Builds the scene's mesh with its region ids: read from the file (region = the file's
+/// region attribute) or generated (region = the branch level for "branching", 0 otherwise),
+/// then scaled and translated. A scene with several bodies gives the merged mesh (the
+/// MeshWithRegions part of build_multibody_mesh; use that for the body of each vertex).
+/// \tparam Dim must equal scene_dimension(scene)
+/// \return #V by Dim positions, #E elements, #E region ids
+/// \throws InputError naming the scene file (and the mesh file for reader errors)
+template <int Dim>
+MeshWithRegions<Dim> build_mesh_with_regions(const SceneSpec& scene) {
+  scene_detail::check_dimension<Dim>(scene, "build_mesh");
+  if (num_bodies(scene) == 1) return build_body_mesh<Dim>(scene, 0);
+  MultiBodyMesh<Dim> merged = build_multibody_mesh<Dim>(scene);
+  return std::move(static_cast<MeshWithRegions<Dim>&>(merged));
+}
+
 /// \brief The scene's mesh (see build_mesh_with_regions).
 template <int Dim>
 SimplicialMesh<Dim> build_mesh(const SceneSpec& scene) {
   return build_mesh_with_regions<Dim>(scene).mesh;
 }
 
+namespace scene_detail {
+
+/// The members of body `body` among `n` items (vertices or elements) with per-item bodies
+/// `item_body` (an empty map is a single-body scene: every item is in body 0). For body < 0
+/// every item. fail() is called (it throws) when the map is missing or has the wrong size.
+template <typename Fail>
+std::vector<char> body_members(int body, int num_bodies, const std::vector<int>& item_body, Index n,
+                               const char* what, Fail&& fail) {
+  std::vector<char> in(static_cast<size_t>(n), 1);
+  if (body < 0) return in;
+  if (item_body.empty()) {
+    if (num_bodies <= 1 && body == 0) return in;
+    fail(std::string("body: the body of every ") + what + " is not known (the scene has " +
+         std::to_string(num_bodies) +
+         " bodies: build the mesh with build_multibody_mesh<Dim>() and pass its " +
+         (what[0] == 'v' ? "vertex_body" : "element_body") + ")");
+  }
+  if (static_cast<Index>(item_body.size()) != n)
+    fail(std::string("body: ") + std::to_string(item_body.size()) + " body ids for " +
+         std::to_string(n) + (what[0] == 'v' ? " vertices" : " elements"));
+  for (Index i = 0; i < n; ++i) in[i] = item_body[i] == body;
+  return in;
+}
+
+/// The bounding box (and closing tolerance) of the vertices flagged in `in`; all vertices when
+/// `in` flags them all.
+template <int Dim>
+std::pair<Eigen::AlignedBox<double, Dim>, double> bounds(const VertexMatrix<Dim>& X,
+                                                         const std::vector<char>& in) {
+  Eigen::AlignedBox<double, Dim> box;
+  for (Index v = 0; v < X.rows(); ++v)
+    if (in[v]) box.extend(Vec<Dim>(X.row(v).transpose()));
+  if (box.isEmpty()) box.extend(Vec<Dim>::Zero());
+  return {box, 1e-9 * box.diagonal().norm()};
+}
+
+inline std::string body_label(int body, const std::string& name) {
+  return "body " + std::to_string(body) + (name.empty() ? "" : " \"" + name + "\"");
+}
+
+}  // namespace scene_detail
+
 /// \brief The vertices a selector picks, sorted and unique.
 /// \param[in] mesh  #V by Dim rest positions are tested
+/// \param[in] vertex_body  #V: the body of every vertex (MultiBodyMesh::vertex_body); needed
+///   only by selectors with a "body" in a scene of several bodies (empty: unknown)
 /// \return vertex indices in [0, #V)
-/// \throws InputError "SCENE: JSON.PATH: ..." when an index is out of range or nothing matches
+/// \throws InputError "SCENE: JSON.PATH: ..." when an index is out of range, nothing matches,
+///   or the selector names a body and the bodies of the vertices are not given
 template <int Dim>
-std::vector<Index> select_vertices(const VertexSelector& sel, const SimplicialMesh<Dim>& mesh) {
+std::vector<Index> select_vertices(const VertexSelector& sel, const SimplicialMesh<Dim>& mesh,
+                                   const std::vector<int>& vertex_body = {}) {
   auto fail = [&](const std::string& msg) {
     throw InputError(sel.json_path.empty() ? msg : sel.json_path + ": " + msg, sel.scene_file);
   };
   std::vector<Index> out;
   const auto& X = mesh.rest_positions();
-  const auto [bb, tol] = scene_detail::bounds(mesh);
+  const Index nv = mesh.num_vertices();
+  const std::vector<char> in =
+      scene_detail::body_members(sel.body, sel.num_bodies, vertex_body, nv, "vertex", fail);
+  const auto [bb, tol] =
+      sel.body >= 0 ? scene_detail::bounds<Dim>(X, in) : scene_detail::bounds(mesh);
   switch (sel.kind) {
     case VertexSelector::Kind::Indices:
       for (size_t i = 0; i < sel.indices.size(); ++i) {
         const Index v = sel.indices[i];
-        if (v < 0 || v >= mesh.num_vertices())
+        if (v < 0 || v >= nv)
           fail("indices[" + std::to_string(i) + "] = " + std::to_string(v) +
-               " is out of range: the mesh has " + std::to_string(mesh.num_vertices()) +
-               " vertices");
+               " is out of range: the mesh has " + std::to_string(nv) + " vertices");
         out.push_back(v);
       }
       break;
@@ -1335,8 +1912,8 @@ std::vector<Index> select_vertices(const VertexSelector& sel, const SimplicialMe
       if (sel.box.lo.size() != Dim || sel.box.hi.size() != Dim)
         fail("box: lo and hi need " + std::to_string(Dim) + " entries");
       const auto [lo, hi] = scene_detail::absolute_box<Dim>(sel.box, bb, tol);
-      for (Index v = 0; v < mesh.num_vertices(); ++v)
-        if ((X.row(v).transpose().array() >= lo.array()).all() &&
+      for (Index v = 0; v < nv; ++v)
+        if (in[v] && (X.row(v).transpose().array() >= lo.array()).all() &&
             (X.row(v).transpose().array() <= hi.array()).all())
           out.push_back(v);
       break;
@@ -1346,36 +1923,63 @@ std::vector<Index> select_vertices(const VertexSelector& sel, const SimplicialMe
         fail("slab: axis " + std::to_string(sel.slab.axis) + " does not exist in " +
              std::to_string(Dim) + "D");
       const auto [lo, hi] = scene_detail::absolute_slab<Dim>(sel.slab, bb, tol);
-      for (Index v = 0; v < mesh.num_vertices(); ++v)
-        if (X(v, sel.slab.axis) >= lo && X(v, sel.slab.axis) <= hi) out.push_back(v);
+      for (Index v = 0; v < nv; ++v)
+        if (in[v] && X(v, sel.slab.axis) >= lo && X(v, sel.slab.axis) <= hi) out.push_back(v);
       break;
     }
+    case VertexSelector::Kind::Body:
+      for (Index v = 0; v < nv; ++v)
+        if (in[v]) out.push_back(v);
+      break;
   }
   std::sort(out.begin(), out.end());
   out.erase(std::unique(out.begin(), out.end()), out.end());
   if (out.empty()) {
     std::ostringstream os;
-    os << "selects no vertex (the mesh's bounding box is [" << bb.min().transpose() << "] .. ["
-       << bb.max().transpose() << "])";
+    if (sel.body >= 0 && sel.kind == VertexSelector::Kind::Body)
+      os << "selects no vertex (" << scene_detail::body_label(sel.body, sel.body_name)
+         << " has none)";
+    else if (sel.body >= 0)
+      os << "selects no vertex of " << scene_detail::body_label(sel.body, sel.body_name)
+         << " (its bounding box is [" << bb.min().transpose() << "] .. [" << bb.max().transpose()
+         << "])";
+    else
+      os << "selects no vertex (the mesh's bounding box is [" << bb.min().transpose() << "] .. ["
+         << bb.max().transpose() << "])";
     fail(os.str());
   }
   return out;
 }
 
-/// \brief The elements a selector picks (by index, centroid in a box or slab, or mesh region
-/// id), sorted.
+/// \brief The elements a selector picks (by index, centroid in a box or slab, mesh region id,
+/// or body), sorted.
 /// \param[in] mesh_regions  #E region ids of the mesh (needed for Kind::MeshRegion)
+/// \param[in] element_body  #E: the body of every element (MultiBodyMesh::element_body);
+///   needed only by selectors with a "body" in a scene of several bodies (empty: unknown)
 /// \throws InputError "SCENE: JSON.PATH: ..." for out-of-range indices or an empty selection
 template <int Dim>
 std::vector<Index> select_elements(const ElementSelector& r, const SimplicialMesh<Dim>& mesh,
                                    const std::vector<int>& mesh_regions,
-                                   const std::string& scene_file = {}) {
+                                   const std::string& scene_file = {},
+                                   const std::vector<int>& element_body = {}) {
   auto fail = [&](const std::string& msg) {
     throw InputError(r.json_path.empty() ? msg : r.json_path + ": " + msg, scene_file);
   };
   std::vector<Index> out;
-  const auto [bb, tol] = scene_detail::bounds(mesh);
   const Index ne = mesh.num_elements();
+  const std::vector<char> in =
+      scene_detail::body_members(r.body, r.num_bodies, element_body, ne, "element", fail);
+  // The bounding box of the body: of the vertices of its elements.
+  std::vector<char> body_vertices;
+  if (r.body >= 0) {
+    body_vertices.assign(static_cast<size_t>(mesh.num_vertices()), 0);
+    for (Index e = 0; e < ne; ++e)
+      if (in[e])
+        for (int a = 0; a <= Dim; ++a) body_vertices[mesh.elements()(e, a)] = 1;
+  }
+  const auto [bb, tol] = r.body >= 0
+                             ? scene_detail::bounds<Dim>(mesh.rest_positions(), body_vertices)
+                             : scene_detail::bounds(mesh);
   switch (r.kind) {
     case ElementSelector::Kind::Elements:
       for (size_t i = 0; i < r.elements.size(); ++i) {
@@ -1388,6 +1992,7 @@ std::vector<Index> select_elements(const ElementSelector& r, const SimplicialMes
     case ElementSelector::Kind::Box: {
       const auto [lo, hi] = scene_detail::absolute_box<Dim>(r.box, bb, tol);
       for (Index e = 0; e < ne; ++e) {
+        if (!in[e]) continue;
         const Vec<Dim> c = mesh.centroid(e);
         if ((c.array() >= lo.array()).all() && (c.array() <= hi.array()).all()) out.push_back(e);
       }
@@ -1397,6 +2002,7 @@ std::vector<Index> select_elements(const ElementSelector& r, const SimplicialMes
       if (r.slab.axis >= Dim) fail("slab: axis out of range");
       const auto [lo, hi] = scene_detail::absolute_slab<Dim>(r.slab, bb, tol);
       for (Index e = 0; e < ne; ++e) {
+        if (!in[e]) continue;
         const double c = mesh.centroid(e)[r.slab.axis];
         if (c >= lo && c <= hi) out.push_back(e);
       }
@@ -1407,21 +2013,36 @@ std::vector<Index> select_elements(const ElementSelector& r, const SimplicialMes
         fail("mesh_region: the mesh's region ids are not available (" +
              std::to_string(mesh_regions.size()) + " ids for " + std::to_string(ne) +
              " elements; pass them to build_materials / build_muscles)");
-      std::set<int> ids(mesh_regions.begin(), mesh_regions.end());
+      std::set<int> ids;
       for (Index e = 0; e < ne; ++e)
-        if (mesh_regions[e] == r.mesh_region) out.push_back(e);
+        if (in[e]) ids.insert(mesh_regions[e]);
+      for (Index e = 0; e < ne; ++e)
+        if (in[e] && mesh_regions[e] == r.mesh_region) out.push_back(e);
       if (out.empty()) {
         std::string known;
         for (int id : ids) known += (known.empty() ? "" : ", ") + std::to_string(id);
-        fail("mesh_region: no element has region id " + std::to_string(r.mesh_region) +
-             " (the mesh has " + known + ")");
+        fail("mesh_region: no element has region id " + std::to_string(r.mesh_region) + " (" +
+             (r.body >= 0 ? scene_detail::body_label(r.body, r.body_name)
+                          : std::string("the mesh")) +
+             " has " + known + ")");
       }
       break;
     }
+    case ElementSelector::Kind::Body:
+      for (Index e = 0; e < ne; ++e)
+        if (in[e]) out.push_back(e);
+      break;
   }
   std::sort(out.begin(), out.end());
   out.erase(std::unique(out.begin(), out.end()), out.end());
-  if (out.empty()) fail("selects no element (by element centroid)");
+  if (out.empty()) {
+    if (r.body >= 0 && r.kind == ElementSelector::Kind::Body)
+      fail("selects no element (" + scene_detail::body_label(r.body, r.body_name) + " has none)");
+    if (r.body >= 0)
+      fail("selects no element of " + scene_detail::body_label(r.body, r.body_name) +
+           " (by element centroid)");
+    fail("selects no element (by element centroid)");
+  }
   return out;
 }
 
@@ -1430,8 +2051,22 @@ std::vector<Index> select_elements(const ElementSelector& r, const SimplicialMes
 template <int Dim>
 std::vector<Index> select_elements(const RegionSpec& r, const SimplicialMesh<Dim>& mesh,
                                    const std::vector<int>& mesh_regions,
+                                   const std::string& scene_file = {},
+                                   const std::vector<int>& element_body = {}) {
+  return select_elements(element_selector(r), mesh, mesh_regions, scene_file, element_body);
+}
+
+/// \brief The vertices a selector picks on a multi-body mesh (body selectors use its bodies).
+template <int Dim>
+std::vector<Index> select_vertices(const VertexSelector& sel, const MultiBodyMesh<Dim>& m) {
+  return select_vertices(sel, m.mesh, m.vertex_body);
+}
+
+/// \brief The elements a selector picks on a multi-body mesh (its region ids and bodies).
+template <int Dim>
+std::vector<Index> select_elements(const ElementSelector& r, const MultiBodyMesh<Dim>& m,
                                    const std::string& scene_file = {}) {
-  return select_elements(element_selector(r), mesh, mesh_regions, scene_file);
+  return select_elements(r, m.mesh, m.region, scene_file, m.element_body);
 }
 
 /// \brief The material of every element: the default material, then each region assignment
@@ -1440,10 +2075,13 @@ std::vector<Index> select_elements(const RegionSpec& r, const SimplicialMesh<Dim
 /// \param[in] mesh  the mesh from build_mesh<Dim>(scene)
 /// \param[in] file_regions  #E region ids (MeshWithRegions::region); needed only by
 ///   "mesh_region" assignments
+/// \param[in] element_body  #E bodies (MultiBodyMesh::element_body); needed only by "body"
+///   assignments in a scene of several bodies
 /// \throws InputError naming the scene file and the region's JSON path
 template <int Dim>
 MaterialField build_materials(const SceneSpec& scene, const SimplicialMesh<Dim>& mesh,
-                              const std::vector<int>& file_regions = {}) {
+                              const std::vector<int>& file_regions = {},
+                              const std::vector<int>& element_body = {}) {
   scene_detail::check_dimension<Dim>(scene, "build_materials");
   auto scaled = [&](Material m, const std::string& name) {
     for (size_t i = 0; i < scene.contrast.regions.size(); ++i)
@@ -1460,7 +2098,7 @@ MaterialField build_materials(const SceneSpec& scene, const SimplicialMesh<Dim>&
     throw InputError("material (with contrast factor): " + e.message(), scene.file);
   }
   for (const RegionSpec& r : scene.regions) {
-    const std::vector<Index> sel = select_elements(r, mesh, file_regions, scene.file);
+    const std::vector<Index> sel = select_elements(r, mesh, file_regions, scene.file, element_body);
     try {
       field.assign(sel, scaled(r.material, r.name));
     } catch (const InputError& e) {
@@ -1469,6 +2107,12 @@ MaterialField build_materials(const SceneSpec& scene, const SimplicialMesh<Dim>&
     }
   }
   return field;
+}
+
+/// \brief build_materials on a multi-body mesh (its region ids and element bodies).
+template <int Dim>
+MaterialField build_materials(const SceneSpec& scene, const MultiBodyMesh<Dim>& m) {
+  return build_materials<Dim>(scene, m.mesh, m.region, m.element_body);
 }
 
 /// \brief The per-element muscle data of a scene on its mesh (build_muscles()): what
@@ -1507,7 +2151,8 @@ struct MuscleField {
 ///   element or an index out of range, and naming both groups when an element is in two
 template <int Dim>
 MuscleField build_muscles(const SceneSpec& scene, const SimplicialMesh<Dim>& mesh,
-                          const std::vector<int>& mesh_regions = {}) {
+                          const std::vector<int>& mesh_regions = {},
+                          const std::vector<int>& element_body = {}) {
   scene_detail::check_dimension<Dim>(scene, "build_muscles");
   const Index ne = mesh.num_elements();
   const auto& groups = scene.muscles.groups;
@@ -1521,7 +2166,8 @@ MuscleField build_muscles(const SceneSpec& scene, const SimplicialMesh<Dim>& mes
     const MuscleGroupSpec& grp = groups[g];
     out.names.push_back(grp.name);
     out.activations[static_cast<Index>(g)] = grp.activation;
-    const std::vector<Index> sel = select_elements(grp.elements, mesh, mesh_regions, scene.file);
+    const std::vector<Index> sel =
+        select_elements(grp.elements, mesh, mesh_regions, scene.file, element_body);
     Index overlaps = 0, first = -1;
     for (Index e : sel)
       if (out.group[e] >= 0 && overlaps++ == 0) first = e;
@@ -1544,42 +2190,128 @@ MuscleField build_muscles(const SceneSpec& scene, const SimplicialMesh<Dim>& mes
   return out;
 }
 
+/// \brief build_muscles on a multi-body mesh (its region ids and element bodies).
+template <int Dim>
+MuscleField build_muscles(const SceneSpec& scene, const MultiBodyMesh<Dim>& m) {
+  return build_muscles<Dim>(scene, m.mesh, m.region, m.element_body);
+}
+
 /// \brief The Dirichlet mask of the scene's "fixed" entries (drivers are not included).
+/// \param[in] vertex_body  #V bodies (MultiBodyMesh::vertex_body); needed only by "body"
+///   selectors in a scene of several bodies
 /// \return #V by Dim flags, true where the coordinate is fixed (PDSystem::set_dirichlet)
 template <int Dim>
 Eigen::Matrix<bool, Eigen::Dynamic, Dim> fixed_mask(const SceneSpec& scene,
-                                                    const SimplicialMesh<Dim>& mesh) {
+                                                    const SimplicialMesh<Dim>& mesh,
+                                                    const std::vector<int>& vertex_body = {}) {
   scene_detail::check_dimension<Dim>(scene, "fixed_mask");
   Eigen::Matrix<bool, Eigen::Dynamic, Dim> mask =
       Eigen::Matrix<bool, Eigen::Dynamic, Dim>::Constant(mesh.num_vertices(), Dim, false);
   for (const FixSpec& f : scene.fixed)
-    for (Index v : select_vertices(f.vertices, mesh))
+    for (Index v : select_vertices(f.vertices, mesh, vertex_body))
       for (int d = 0; d < Dim; ++d) mask(v, d) = mask(v, d) || f.axes[d];
   return mask;
 }
 
-/// \brief The initial velocity of every vertex: linear + angular x (x - c), c the centre of
-/// mass of the lumped masses.
-/// \return #V by Dim velocities, m/s
+/// \brief fixed_mask on a multi-body mesh.
 template <int Dim>
-VertexMatrix<Dim> initial_velocities(const SceneSpec& scene, const SimplicialMesh<Dim>& mesh,
-                                     const MaterialField& materials) {
-  scene_detail::check_dimension<Dim>(scene, "initial_velocities");
-  const VectorX mass = mesh.lumped_mass(materials.densities());
-  const auto& X = mesh.rest_positions();
-  const Vec<Dim> c = (X.transpose() * mass) / mass.sum();
-  VertexMatrix<Dim> V(mesh.num_vertices(), Dim);
-  const Vec<Dim> lin = scene.initial_velocity.linear.head<Dim>();
-  for (Index v = 0; v < mesh.num_vertices(); ++v) {
+Eigen::Matrix<bool, Eigen::Dynamic, Dim> fixed_mask(const SceneSpec& scene,
+                                                    const MultiBodyMesh<Dim>& m) {
+  return fixed_mask<Dim>(scene, m.mesh, m.vertex_body);
+}
+
+namespace scene_detail {
+
+/// Adds v = linear + angular x (x - c) to the rows of V flagged in `in` (every row when `in`
+/// is null), c the centre of mass (lumped masses `mass`) of those vertices.
+template <int Dim>
+void add_rigid_velocity(VertexMatrix<Dim>& V, const VertexMatrix<Dim>& X, const VectorX& mass,
+                        const std::vector<char>* in, const InitialVelocitySpec& iv) {
+  Vec<Dim> c = Vec<Dim>::Zero();
+  if (!in) {
+    c = (X.transpose() * mass) / mass.sum();
+  } else {
+    double m = 0;
+    for (Index v = 0; v < X.rows(); ++v)
+      if ((*in)[v]) c += mass[v] * X.row(v).transpose(), m += mass[v];
+    if (m > 0) c /= m;
+  }
+  const Vec<Dim> lin = iv.linear.head<Dim>();
+  for (Index v = 0; v < X.rows(); ++v) {
+    if (in && !(*in)[v]) continue;
     const Vec<Dim> r = X.row(v).transpose() - c;
     Vec<Dim> w;
     if constexpr (Dim == 3)
-      w = Vec<3>(scene.initial_velocity.angular.head<3>()).cross(r);
+      w = Vec<3>(iv.angular.head<3>()).cross(r);
     else
-      w = scene.initial_velocity.angular[0] * Vec<2>(-r[1], r[0]);
-    V.row(v) = (lin + w).transpose();
+      w = iv.angular[0] * Vec<2>(-r[1], r[0]);
+    V.row(v) += (lin + w).transpose();
+  }
+}
+
+}  // namespace scene_detail
+
+/// \brief The initial velocity of every vertex: the object form, linear + angular x (x - c)
+/// with c the centre of mass of the lumped masses of all vertices, plus each per-body entry
+/// (scene.body_velocities) on its body's vertices, about that body's centre of mass.
+/// \param[in] vertex_body  #V bodies (MultiBodyMesh::vertex_body); needed only by per-body
+///   entries in a scene of several bodies
+/// \return #V by Dim velocities, m/s
+/// \throws InputError when per-body entries need vertex_body and it is not given
+template <int Dim>
+VertexMatrix<Dim> initial_velocities(const SceneSpec& scene, const SimplicialMesh<Dim>& mesh,
+                                     const MaterialField& materials,
+                                     const std::vector<int>& vertex_body = {}) {
+  scene_detail::check_dimension<Dim>(scene, "initial_velocities");
+  const VectorX mass = mesh.lumped_mass(materials.densities());
+  const auto& X = mesh.rest_positions();
+  const Index nv = mesh.num_vertices();
+  VertexMatrix<Dim> V = VertexMatrix<Dim>::Zero(nv, Dim);
+  scene_detail::add_rigid_velocity<Dim>(V, X, mass, nullptr, scene.initial_velocity);
+  for (const InitialVelocitySpec& iv : scene.body_velocities) {
+    auto fail = [&](const std::string& msg) {
+      throw InputError(iv.json_path + ": " + msg, scene.file);
+    };
+    const std::vector<char> in =
+        scene_detail::body_members(iv.body, num_bodies(scene), vertex_body, nv, "vertex", fail);
+    scene_detail::add_rigid_velocity<Dim>(V, X, mass, &in, iv);
   }
   return V;
+}
+
+/// \brief initial_velocities on a multi-body mesh.
+template <int Dim>
+VertexMatrix<Dim> initial_velocities(const SceneSpec& scene, const MultiBodyMesh<Dim>& m,
+                                     const MaterialField& materials) {
+  return initial_velocities<Dim>(scene, m.mesh, materials, m.vertex_body);
+}
+
+/// \brief The scene's colliders as contact::Collider<Dim> (in file order; an unbounded stop
+/// becomes Collider's default stop_time).
+/// \tparam Dim must equal scene_dimension(scene)
+template <int Dim>
+std::vector<contact::Collider<Dim>> build_colliders(const SceneSpec& scene) {
+  scene_detail::check_dimension<Dim>(scene, "build_colliders");
+  std::vector<contact::Collider<Dim>> out;
+  for (const SceneCollider& c : scene.colliders) {
+    using K = typename contact::Collider<Dim>::Kind;
+    contact::Collider<Dim> k;
+    k.kind = c.kind == SceneCollider::Kind::HalfSpace ? K::HalfSpace
+             : c.kind == SceneCollider::Kind::Sphere  ? K::Sphere
+                                                      : K::Box;
+    k.name = c.name;
+    k.point = c.point.head<Dim>();
+    if (c.kind == SceneCollider::Kind::HalfSpace) k.normal = c.normal.head<Dim>();
+    if (c.kind == SceneCollider::Kind::Sphere) k.radius = c.radius;
+    if (c.kind == SceneCollider::Kind::Box) k.half_extents = c.half_extents.head<Dim>();
+    k.velocity = c.velocity.size() == Dim ? Vec<Dim>(c.velocity.head<Dim>()) : Vec<Dim>::Zero();
+    k.start_time = c.start;
+    if (std::isfinite(c.stop)) k.stop_time = c.stop;
+    k.friction = c.friction;
+    k.restitution = c.restitution;
+    out.push_back(std::move(k));
+  }
+  return out;
 }
 
 /// \brief The force on each of `count` selected vertices: f.force, or f.force / count when

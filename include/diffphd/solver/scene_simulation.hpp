@@ -119,25 +119,26 @@ class SceneRunner {
   template <class Options>
   SceneRunner(const io::SceneSpec& scene, const Options& options)
       : scene_(checked_dimension(scene)),
-        built_(io::build_mesh_with_regions<Dim>(scene_)),
-        materials_(io::build_materials<Dim>(scene_, built_.mesh, built_.region)),
+        built_(io::build_multibody_mesh<Dim>(scene_)),
+        materials_(io::build_materials<Dim>(scene_, built_.mesh, built_.region,
+                                            built_.element_body)),
         sim_(built_.mesh, materials_, options),
         driver_added_(scene_.drivers.size(), false) {
-    const auto mask = io::fixed_mask<Dim>(scene_, mesh());
+    const auto mask = io::fixed_mask<Dim>(scene_, built_);
     for (Index v = 0; v < mesh().num_vertices(); ++v) {
       std::array<bool, Dim> axes;
       bool any = false;
       for (int k = 0; k < Dim; ++k) any |= (axes[k] = mask(v, k));
       if (any) sim_.fix_vertices({v}, axes);
     }
-    initial_velocities_ = io::initial_velocities<Dim>(scene_, mesh(), materials_);
+    initial_velocities_ = io::initial_velocities<Dim>(scene_, built_, materials_);
     sim_.set_state(mesh().rest_positions(), initial_velocities_);
     for (const io::ForceSpec& f : scene_.forces)
-      force_vertices_.push_back(io::select_vertices(f.vertices, mesh()));
+      force_vertices_.push_back(io::select_vertices(f.vertices, built_));
     // Drivers' vertex sets are checked now, not when they start.
-    for (const io::DriverSpec& d : scene_.drivers) io::select_vertices(d.vertices, mesh());
+    for (const io::DriverSpec& d : scene_.drivers) io::select_vertices(d.vertices, built_);
     if constexpr (kHasMuscles) {
-      muscles_ = io::build_muscles<Dim>(scene_, mesh(), built_.region);
+      muscles_ = io::build_muscles<Dim>(scene_, built_);
       if (muscles_.num_groups() > 0) {
         sim_.set_muscle(muscles_.stiffness, muscles_.fibres);
         set_group_activations(muscles_.activations);
@@ -213,6 +214,10 @@ class SceneRunner {
   const SimplicialMesh<Dim>& mesh() const { return built_.mesh; }
   /// Per-element region ids of the mesh file / generator (0 where it has none).
   const std::vector<int>& mesh_regions() const { return built_.region; }
+  /// #V: the body of every vertex (all 0 for a one-body scene).
+  const std::vector<int>& vertex_body() const { return built_.vertex_body; }
+  /// The scene's bodies on the merged mesh (vertex and element ranges, names).
+  const io::MultiBodyMesh<Dim>& bodies() const { return built_; }
   const MaterialField& materials() const { return materials_; }
   /// #V by Dim: the scene's initial velocities (restart() sets them again).
   const VertexMatrix<Dim>& initial_velocities() const { return initial_velocities_; }
@@ -232,7 +237,7 @@ class SceneRunner {
       const io::DriverSpec& d = scene_.drivers[i];
       if (driver_added_[i] || t + 1e-12 * scene_.h < d.start) continue;
       Driver<Dim> drv;
-      drv.vertices = io::select_vertices(d.vertices, mesh());
+      drv.vertices = io::select_vertices(d.vertices, built_);
       drv.start = d.start;
       drv.stop = d.stop;
       drv.release_at_stop = d.release_at_stop;
@@ -266,7 +271,7 @@ class SceneRunner {
   }
 
   io::SceneSpec scene_;
-  io::MeshWithRegions<Dim> built_;
+  io::MultiBodyMesh<Dim> built_;
   MaterialField materials_;
   Sim sim_;
   std::vector<bool> driver_added_;
@@ -276,17 +281,34 @@ class SceneRunner {
   VectorX group_activations_;
 };
 
-/// \brief A scene on the PD forward solver Solver<Dim, Energy>.
-template <int Dim, class Energy>
-class SceneSimulation : public SceneRunner<Dim, Solver<Dim, Energy>> {
-  using Base = SceneRunner<Dim, Solver<Dim, Energy>>;
+/// \brief A scene on the PD forward solver Solver<Dim, Energy, Contact>. With Contact =
+/// contact::NcpContact<Dim> (include <diffphd/contact/model.hpp>) the scene's colliders, its
+/// "contact" options and the bodies of its vertices configure the contact model; a scene with
+/// contact (io::has_contact) on Contact = NoContact is an InputError rather than a silent
+/// contact-free run.
+template <int Dim, class Energy, class Contact = NoContact>
+class SceneSimulation : public SceneRunner<Dim, Solver<Dim, Energy, Contact>> {
+  using Base = SceneRunner<Dim, Solver<Dim, Energy, Contact>>;
 
  public:
   /// Builds everything the scene describes. Throws InputError (naming the scene file) on a bad
   /// scene, a scene of the other dimension, or a scene whose "solver.energy" names a shipped
   /// energy other than `Energy`.
   explicit SceneSimulation(const io::SceneSpec& scene, const SceneOverrides& over = {})
-      : Base(checked_energy(scene), scene_solver_options(scene, Dim, over)) {}
+      : Base(checked_energy(scene), scene_solver_options(scene, Dim, over)) {
+    if constexpr (std::is_same_v<Contact, NoContact>) {
+      if (io::has_contact(scene))
+        throw InputError(scene.file +
+                         ": the scene has contact (colliders, several bodies or self "
+                         "contact) but the simulation was built without a contact model "
+                         "(SceneSimulation<Dim, Energy, contact::NcpContact<Dim>>)");
+    } else {
+      auto& c = this->solver().contact();
+      c.colliders = io::build_colliders<Dim>(scene);
+      c.options = io::contact_options(scene);
+      c.vertex_body = this->vertex_body();
+    }
+  }
 
   const SolverOptions& options() const { return this->solver().options(); }
 
@@ -330,7 +352,11 @@ class NewtonSceneSimulation : public SceneRunner<Dim, NewtonSolver<Dim>> {
 
  public:
   explicit NewtonSceneSimulation(const io::SceneSpec& scene, const NewtonOptions& base = {})
-      : Base(scene, scene_newton_options(scene, Dim, base)) {}
+      : Base(scene, scene_newton_options(scene, Dim, base)) {
+    if (io::has_contact(scene))
+      throw InputError(scene.file +
+                       ": the scene has contact; the Newton reference has no contact model");
+  }
 };
 
 }  // namespace diffphd
