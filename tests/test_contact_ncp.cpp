@@ -253,14 +253,16 @@ std::pair<int, int> check_conditions(const RandomProblem<Dim>& P, const VectorX&
     CHECK(d >= -tol);
     CHECK(std::abs(std::min(d, ln * P.W(Dim * c, Dim * c))) <= tol);
     CHECK(lf.norm() <= mu * ln * (1 + 1e-8) + 1e-300);
-    if (ln <= 0) continue;
+    // A multiplier at the level of the NCP residual (rho lambda_n below 1e3 tol) is a separated
+    // contact: its friction direction is noise.
+    if (ln * P.W(Dim * c, Dim * c) <= 1e3 * tol) continue;
     if (lf.norm() < mu * ln * (1 - 1e-8)) {
       ++stick;
       CHECK(u.norm() <= tol);
     } else if (mu > 0) {
       ++slide;
       // lambda_f = -mu lambda_n u / |u|.
-      if (u.norm() > tol) CHECK((lf + mu * ln * u.normalized()).norm() <= 1e-6 * mu * ln);
+      if (u.norm() > tol) CHECK((lf + mu * ln * u.normalized()).norm() <= 1e-6 * mu * ln + 1e-12);
     }
   }
   return {stick, slide};

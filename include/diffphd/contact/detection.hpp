@@ -333,41 +333,6 @@ bool better(const MeshCandidate<Dim>& a, const MeshCandidate<Dim>& b) {
   return a.facet < b.facet;
 }
 
-/// The facet vertex u a mesh contact's closest point sits on (its weight within
-/// kVertexWeightTolerance of -1), or -1.
-constexpr double kVertexWeightTolerance = 1e-6;
-template <int Dim>
-Index vertex_partner(const ContactPoint<Dim>& c) {
-  if (c.collider != -1 && c.collider != -2) return -1;
-  for (int j = 1; j < c.count; ++j)
-    if (c.weights[j] <= -(1.0 - kVertexWeightTolerance)) return c.vertices[j];
-  return -1;
-}
-
-/// Two vertices v < u of different bodies (or self-contact) that each have the other as the
-/// closest point of a facet (coincident vertices, e.g. stacked meshes with aligned grids) give two
-/// contact points on the same difference x_u - x_v: 2 Dim rows on Dim DoFs, a singular W. Keeps
-/// the one of v (the lower vertex index). Order preserving.
-template <int Dim>
-void drop_mutual_vertex_pairs(std::vector<ContactPoint<Dim>>& contacts) {
-  std::vector<std::pair<Index, Index>> pairs;
-  for (const auto& c : contacts) {
-    const Index u = vertex_partner(c);
-    if (u >= 0) pairs.emplace_back(c.vertices[0], u);
-  }
-  if (pairs.empty()) return;
-  std::sort(pairs.begin(), pairs.end());
-  size_t w = 0;
-  for (size_t i = 0; i < contacts.size(); ++i) {
-    const Index v = contacts[i].vertices[0], u = vertex_partner(contacts[i]);
-    if (u >= 0 && u < v && std::binary_search(pairs.begin(), pairs.end(), std::make_pair(u, v)))
-      continue;
-    if (w != i) contacts[w] = contacts[i];
-    ++w;
-  }
-  contacts.resize(w);
-}
-
 }  // namespace detection_detail
 
 /// \brief The contacts of a step [t0, t1] (see docs/contact.md), sorted by vertex, then collider
@@ -396,10 +361,7 @@ void drop_mutual_vertex_pairs(std::vector<ContactPoint<Dim>>& contacts) {
 /// q_pred is below -contact_distance), is kept linearised at q_start (normal, weights from
 /// q_start) and preferred over the others. At most one mesh contact per vertex and body: the
 /// nearest facet (ties: the facet whose normal points at the vertex, then the lowest index).
-/// Dropped when every stencil vertex is fully fixed. When two vertices v < u each have the other
-/// as their closest point (facet weight within 1e-6 of 1: coincident vertices, as in stacked
-/// meshes with aligned grids), the two contacts constrain the same difference and W would be
-/// singular: only v's is kept.
+/// Dropped when every stencil vertex is fully fixed.
 ///
 /// Restitution (e = collider restitution, or options.mesh_restitution for mesh contacts, > 0):
 /// with d0 = the gap at the start of the step relative to the surface there (delta_n(q_start),
@@ -575,7 +537,6 @@ std::vector<ContactPoint<Dim>> detect_contacts(const DetectionInput<Dim>& in) {
   std::vector<ContactPoint<Dim>> contacts;
   contacts.reserve(total);
   for (auto& p : per) contacts.insert(contacts.end(), p.begin(), p.end());
-  drop_mutual_vertex_pairs(contacts);
   return contacts;
 }
 

@@ -98,17 +98,49 @@ class NcpSolver {
       if (!sliding && solve_symmetric(points, W, Dy, Dl, phi, dl)) {
         ++rep.ldlt_solves;
       } else {
-        Jm.resize(K, K);
+        // Contacts whose D_y block vanishes (separated: lambda = 0, delta > 0) decouple:
+        // D_l dl_c = -phi_c. The others form the reduced nonsymmetric system
+        // (D_y W + D_l)_CC dl_C = -phi_C - (D_y W)_CD dl_D.
+        std::vector<Index> coupled;
+        dl.setZero(K);
         for (Index c = 0; c < np; ++c) {
-          Jm.middleRows<Dim>(Dim * c).noalias() = Dy[c] * W.middleRows<Dim>(Dim * c);
-          Jm.block<Dim, Dim>(Dim * c, Dim * c) += Dl[c];
+          if (Dy[c].isZero(0)) {
+            dl.template segment<Dim>(Dim * c) = Dl[c].partialPivLu().solve(
+                -phi.template segment<Dim>(Dim * c));
+          } else {
+            coupled.push_back(c);
+          }
         }
-        dl = Jm.partialPivLu().solve(-phi);
-        // Redundant contacts (two bodies whose vertices coincide touch each other both ways:
-        // 6 rows on the same 3 DoFs) make the Jacobian exactly singular and the LU returns
-        // NaN: take the least-squares minimum-norm step instead.
-        if (!dl.allFinite()) dl = Jm.completeOrthogonalDecomposition().solve(-phi);
-        ++rep.lu_solves;
+        const Index m = static_cast<Index>(coupled.size());
+        VectorX rhs(Dim * m);
+        for (Index i = 0; i < m; ++i) {
+          const Index c = coupled[i];
+          rhs.template segment<Dim>(Dim * i) =
+              -phi.template segment<Dim>(Dim * c) -
+              Dy[c] * (W.middleRows<Dim>(Dim * c) * dl);  // dl is zero on coupled rows here
+        }
+        {
+          Jm.resize(Dim * m, Dim * m);
+          for (Index i = 0; i < m; ++i) {
+            const Index c = coupled[i];
+            for (Index j = 0; j < m; ++j)
+              Jm.template block<Dim, Dim>(Dim * i, Dim * j).noalias() =
+                  Dy[c] * W.template block<Dim, Dim>(Dim * c, Dim * coupled[j]);
+            Jm.template block<Dim, Dim>(Dim * i, Dim * i) += Dl[c];
+          }
+          Eigen::PartialPivLU<MatrixX> lu(Jm);
+          VectorX x = lu.solve(rhs);
+          // Redundant contacts (two bodies whose vertices coincide touch each other both ways:
+          // 6 rows on the same 3 DoFs) make the Jacobian exactly singular and the LU returns
+          // NaN: take the least-squares minimum-norm step instead.
+          // A (numerically) singular Jacobian shows as a non-finite or inaccurate solution.
+          if (!x.allFinite() || (Jm * x - rhs).norm() > 1e-8 * rhs.norm()) {
+            x = Jm.completeOrthogonalDecomposition().solve(rhs);
+          }
+          for (Index i = 0; i < m; ++i)
+            dl.template segment<Dim>(Dim * coupled[i]) = x.template segment<Dim>(Dim * i);
+          ++rep.lu_solves;
+        }
       }
       // Armijo backtracking on 1/2 |phi|^2 with the projected trial point.
       double step = 1.0;

@@ -82,7 +82,8 @@ struct ContactOptions {
   double mesh_friction = 0;     ///< Coulomb mu of mesh-against-mesh (and self) contacts
   double mesh_restitution = 0;  ///< restitution of mesh-against-mesh (and self) contacts
   /// Semismooth Newton on the Fischer-Burmeister NCP: stop when max |phi| <= this (m).
-  double ncp_tolerance = 1e-12;
+  /// (1e-12 stalled resting contact under a tight step-relative gate, eps_abs 1e-14.)
+  double ncp_tolerance = 1e-14;
   int ncp_max_iterations = 50;
   /// A converged step whose worst penetration (true distance) exceeds this (m) is redone with
   /// the missed contacts added, at most max_redetections times.
@@ -106,7 +107,7 @@ struct ContactStepStats {
   double cone_violation = 0;      ///< max (|lambda_f| - mu lambda_n) / (mu lambda_n), <= 0 ok
   int ncp_iterations = 0;         ///< semismooth Newton iterations summed over PD iterations
   int ncp_unconverged = 0;        ///< PD iterations whose NCP stopped at its iteration cap
-  int ncp_ldlt = 0, ncp_lu = 0;   ///< Newton systems by LDL^T (symmetric) and by LU (sliding)
+  int ncp_ldlt = 0, ncp_lu = 0;   ///< Newton systems by Cholesky (symmetric) and LU (sliding)
   int redetections = 0;           ///< times the step was redone with missed contacts added
   double seconds_detection = 0, seconds_delassus = 0, seconds_ncp = 0;
 };

@@ -427,9 +427,7 @@ class Solver {
       // Contact (Algorithm 1 lines 15-19): q^ = A^-1 b + sum_r a_r lambda_r.
       if constexpr (kHasContact)
         if (contact_active_) {
-          contact_.project(qhat, i == 0 || q_prev.size() != n
-                                     ? std::numeric_limits<double>::infinity()
-                                     : Backend::distance(q, q_prev));
+          contact_.project(qhat);
           if (!Backend::all_finite(qhat, &bad)) {
             std::ostringstream os;
             os << "iteration " << i << ": non-finite contact solve at vertex " << bad / Dim;
