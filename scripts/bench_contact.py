@@ -68,6 +68,7 @@ def summarise(stats_path, vertices):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--diffphd", default=os.path.join(ROOT, "build", "examples", "diffphd"))
+    # (a relative --diffphd or --out is taken from the current directory)
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "contact"))
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--frames-50", type=int, default=20)
@@ -75,6 +76,8 @@ def main():
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--timeout", type=float, default=1800)
     a = ap.parse_args()
+    a.diffphd = os.path.abspath(a.diffphd)
+    a.out = os.path.abspath(a.out)
     os.makedirs(a.out, exist_ok=True)
     results = []
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
@@ -83,12 +86,13 @@ def main():
             path, label = scene_for(name, size, a.out)
             frames = a.frames if size == 25 else a.frames_50
             run_dir = os.path.join(a.out, label)
-            cmd = [a.diffphd, "run", path, "--out", run_dir, "--no-frames", "--frames",
-                   str(frames), "--json"]
+            # Paths relative to the repository (run from it): the summaries name no machine path.
+            cmd = [a.diffphd, "run", os.path.relpath(path, ROOT), "--out",
+                   os.path.relpath(run_dir, ROOT), "--no-frames", "--frames", str(frames), "--json"]
             print("bench_contact: " + " ".join(cmd), file=sys.stderr, flush=True)
             t0 = time.time()
             try:
-                p = subprocess.run(cmd, capture_output=True, text=True, env=env,
+                p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT,
                                    timeout=a.timeout)
                 status = "ok" if p.returncode == 0 else "exit %d" % p.returncode
                 summary = json.loads(p.stdout) if p.returncode == 0 else {}

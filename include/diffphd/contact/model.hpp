@@ -39,8 +39,7 @@ class NcpContact {
 
   /// True when this model can produce contacts at all (else the solver's K = 0 path runs).
   bool enabled() const {
-    return !colliders.empty() || !attachments.empty() || options.self_contact ||
-           (options.mesh_contact && has_several_bodies());
+    return detects() || !attachments.empty();
   }
 
   /// Contact points of the current step (after begin_step / redetect).
@@ -64,11 +63,9 @@ class NcpContact {
     t1_ = t1;
     points_.clear();
     const auto t_a = std::chrono::steady_clock::now();
-    if (!colliders.empty() || options.self_contact ||
-        (options.mesh_contact && has_several_bodies()))
-      points_ = detect(q_pred);
+    if (detects()) points_ = detect(q_pred);
     for (const auto& a : attachments) points_.push_back(attachment_point(a));
-    stats_.seconds_detection += seconds_since(t_a);
+    stats_.seconds_detection += diffphd::detail::seconds_since(t_a);
     rebuild();
   }
 
@@ -85,7 +82,7 @@ class NcpContact {
         points_.push_back(p);
         ++added;
       }
-    stats_.seconds_detection += seconds_since(t_a);
+    stats_.seconds_detection += diffphd::detail::seconds_since(t_a);
     ++stats_.redetections;
     if (added) {
       // Keep warm starts for the old points.
@@ -113,7 +110,7 @@ class NcpContact {
     stats_.ncp_lu += r.lu_solves;
     last_ncp_converged_ = r.converged;
     delassus_.add_columns(lambda_, q);
-    stats_.seconds_ncp += seconds_since(t_a);
+    stats_.seconds_ncp += diffphd::detail::seconds_since(t_a);
   }
 
   /// Invariants at the converged state q (flat) with the last multipliers; records them and the
@@ -132,7 +129,7 @@ class NcpContact {
       stats_.w_off_diagonal_ratio = delassus_.off_diagonal_ratio();
     }
     PenetrationReport<Dim> pen;
-    if (!colliders.empty() || options.mesh_contact || options.self_contact)
+    if (detects())
       pen = worst_penetration<Dim>(*mesh_, vertex_body_ptr(), q, t1_, colliders, options,
                                    fully_fixed_);
     stats_.worst_penetration = pen.depth;
@@ -143,8 +140,11 @@ class NcpContact {
   bool last_ncp_converged() const { return last_ncp_converged_; }
 
  private:
-  static double seconds_since(std::chrono::steady_clock::time_point t) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+  /// True when detection can find something: colliders, self contact, or mesh contact between
+  /// several bodies.
+  bool detects() const {
+    return !colliders.empty() || options.self_contact ||
+           (options.mesh_contact && has_several_bodies());
   }
   bool has_several_bodies() const {
     for (int b : vertex_body)
@@ -204,7 +204,7 @@ class NcpContact {
         (options.delassus == ContactOptions::Delassus::Auto && all_inverse))
       m = Delassus<Dim>::Method::InverseFactor;
     delassus_.build(*sys_, points_, m);
-    stats_.seconds_delassus += seconds_since(t_a);
+    stats_.seconds_delassus += diffphd::detail::seconds_since(t_a);
   }
 
   const SimplicialMesh<Dim>* mesh_ = nullptr;
