@@ -4,3 +4,5 @@
 
 DIFFPHD_CLI_DEFINE_CONTACT_RUN(diffphd::Energies<diffphd::Corotated, diffphd::Volume>)
 DIFFPHD_CLI_DEFINE_CONTACT_RUN(diffphd::NeoHookeanProx)
+DIFFPHD_CLI_DEFINE_CONTACT_BENCH(diffphd::Energies<diffphd::Corotated, diffphd::Volume>)
+DIFFPHD_CLI_DEFINE_CONTACT_BENCH(diffphd::NeoHookeanProx)

@@ -14,6 +14,11 @@
 #include <diffphd/io/scene.hpp>
 #include <diffphd/solver/scene_simulation.hpp>
 
+namespace diffphd::contact {
+template <int Dim>
+class NcpContact;
+}  // namespace diffphd::contact
+
 namespace diffphd::cli {
 
 /// Positions at the end of every frame, and what the run cost.
@@ -80,10 +85,11 @@ BenchRun run_frames(Runner& run, int frames, Report report) {
   return out;
 }
 
-/// The PD solver Solver<Dim, Energy> on `scene` with `over` applied.
-template <int Dim, class Energy>
+/// The PD solver Solver<Dim, Energy, Contact> on `scene` with `over` applied (Contact:
+/// NoContact, or contact::NcpContact<Dim> for scenes with colliders or several bodies).
+template <int Dim, class Energy, class Contact = NoContact>
 BenchRun bench_pd(const io::SceneSpec& scene, const SceneOverrides& over, int frames) {
-  SceneSimulation<Dim, Energy> run(scene, over);
+  SceneSimulation<Dim, Energy, Contact> run(scene, over);
   return run_frames(run, frames, [](const StepReport& r) {
     return std::make_tuple(r.converged, r.iterations, r.seconds, r.status != StepStatus::NonFinite);
   });
@@ -116,11 +122,28 @@ BenchRun bench_newton_dispatch(const io::SceneSpec& scene, const NewtonOptions& 
   template diffphd::cli::BenchRun diffphd::cli::bench_pd<3, __VA_ARGS__>(  \
       const diffphd::io::SceneSpec&, const diffphd::SceneOverrides&, int);
 
+#define DIFFPHD_CLI_DECLARE_CONTACT_BENCH(...)                                           \
+  extern template diffphd::cli::BenchRun                                                 \
+  diffphd::cli::bench_pd<2, __VA_ARGS__, diffphd::contact::NcpContact<2>>(               \
+      const diffphd::io::SceneSpec&, const diffphd::SceneOverrides&, int);               \
+  extern template diffphd::cli::BenchRun                                                 \
+  diffphd::cli::bench_pd<3, __VA_ARGS__, diffphd::contact::NcpContact<3>>(               \
+      const diffphd::io::SceneSpec&, const diffphd::SceneOverrides&, int);
+#define DIFFPHD_CLI_DEFINE_CONTACT_BENCH(...)                                            \
+  template diffphd::cli::BenchRun                                                        \
+  diffphd::cli::bench_pd<2, __VA_ARGS__, diffphd::contact::NcpContact<2>>(               \
+      const diffphd::io::SceneSpec&, const diffphd::SceneOverrides&, int);               \
+  template diffphd::cli::BenchRun                                                        \
+  diffphd::cli::bench_pd<3, __VA_ARGS__, diffphd::contact::NcpContact<3>>(               \
+      const diffphd::io::SceneSpec&, const diffphd::SceneOverrides&, int);
+
 DIFFPHD_CLI_DECLARE_BENCH(diffphd::Energies<diffphd::Corotated, diffphd::Volume>)
 DIFFPHD_CLI_DECLARE_BENCH(diffphd::Corotated)
 DIFFPHD_CLI_DECLARE_BENCH(diffphd::NeoHookeanProx)
 DIFFPHD_CLI_DECLARE_BENCH(diffphd::Energies<diffphd::NeoHookeanProx, diffphd::LogVolume>)
 DIFFPHD_CLI_DECLARE_BENCH(diffphd::Energies<diffphd::Corotated, diffphd::Volume, diffphd::Muscle>)
+DIFFPHD_CLI_DECLARE_CONTACT_BENCH(diffphd::Energies<diffphd::Corotated, diffphd::Volume>)
+DIFFPHD_CLI_DECLARE_CONTACT_BENCH(diffphd::NeoHookeanProx)
 extern template diffphd::cli::BenchRun diffphd::cli::bench_newton<2>(const diffphd::io::SceneSpec&,
                                                                      const diffphd::NewtonOptions&,
                                                                      int);

@@ -39,6 +39,19 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
 
 template <int Dim>
 static BenchRun bench_dim(const io::SceneSpec& scene, const SceneOverrides& over, int frames) {
+  if (io::has_contact(scene)) {
+    switch (scene.solver.energy) {
+      case io::EnergyKind::CorotatedVolume:
+        return bench_pd<Dim, Energies<Corotated, Volume>, contact::NcpContact<Dim>>(scene, over,
+                                                                                   frames);
+      case io::EnergyKind::NeoHookean:
+        return bench_pd<Dim, NeoHookeanProx, contact::NcpContact<Dim>>(scene, over, frames);
+      default:
+        throw InputError(scene.file + ": solver.energy \"" + io::to_string(scene.solver.energy) +
+                         "\": scenes with contact run with \"corotated+volume\" or "
+                         "\"neo-hookean\"");
+    }
+  }
   switch (scene.solver.energy) {
     case io::EnergyKind::CorotatedVolume:
       return bench_pd<Dim, Energies<Corotated, Volume>>(scene, over, frames);

@@ -86,7 +86,8 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
     if (WithContact)
       csv << ",contact_points,contact_active,contact_sliding,contact_fraction,worst_penetration,"
              "complementarity,cone_violation,w_off_diagonal_ratio,ncp_iterations,ncp_ldlt,ncp_lu,"
-             "ncp_unconverged,redetections,seconds_detection,seconds_delassus,seconds_ncp";
+             "ncp_krylov,ncp_krylov_iterations,ncp_unconverged,redetections,seconds_detection,"
+             "seconds_delassus,seconds_ncp";
     csv << "\n";
   }
   Eigen::VectorXd region(mesh.num_elements()), E = materials.youngs_moduli();
@@ -146,7 +147,8 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
           csv << ',' << c.points << ',' << c.active << ',' << c.sliding << ',' << fraction << ','
               << c.worst_penetration << ',' << c.complementarity << ',' << c.cone_violation << ','
               << c.w_off_diagonal_ratio << ',' << c.ncp_iterations << ',' << c.ncp_ldlt << ','
-              << c.ncp_lu << ',' << c.ncp_unconverged << ',' << c.redetections << ','
+              << c.ncp_lu << ',' << c.ncp_krylov << ',' << c.ncp_krylov_iterations << ','
+              << c.ncp_unconverged << ',' << c.redetections << ','
               << c.seconds_detection << ',' << c.seconds_delassus << ',' << c.seconds_ncp;
       }
       if (csv) csv << std::endl;  // flushed: long runs can be watched

@@ -338,6 +338,108 @@ TEMPLATE_TEST_CASE_SIG("NCP: Coulomb friction, sticking and sliding contacts sat
   CHECK(slides > 5);
 }
 
+TEMPLATE_TEST_CASE_SIG("NCP: the matrix-free GMRES Newton systems give the dense solution",
+                       "[contact][ncp]", ((int Dim), Dim), 2, 3) {
+  // Oracle: the dense Cholesky / LU Newton. Same problems, Krylov forced on every system.
+  int krylov_systems = 0;
+  for (unsigned seed = 1; seed <= 4; ++seed)
+    for (double mu : {0.0, 0.3}) {
+      auto P = random_problem<Dim>(40, mu, 100 + seed);
+      VectorX ld, lk;
+      NcpSolver<Dim> dense, krylov;
+      dense.linear.method = ContactOptions::NcpLinear::Dense;
+      krylov.linear.method = ContactOptions::NcpLinear::Krylov;
+      krylov.linear.krylov_tolerance = 1e-8;
+      const NcpReport rd = dense.solve(P.pts, P.W, P.y0, ld, 1e-13, 100);
+      const NcpReport rk = krylov.solve(P.pts, P.W, P.y0, lk, 1e-13, 100);
+      INFO("seed " << seed << ", mu " << mu << ": dense " << rd.iterations << " Newton its, "
+                   << "Krylov " << rk.iterations << " Newton its / " << rk.krylov_iterations
+                   << " GMRES its, " << rk.krylov_solves << " GMRES systems, " << rk.lu_solves
+                   << " LU fallbacks");
+      REQUIRE(rd.converged);
+      REQUIRE(rk.converged);
+      CHECK(rd.krylov_solves == 0);
+      CHECK(rk.krylov_solves >= rk.iterations - rk.lu_solves - rk.ldlt_solves);
+      krylov_systems += rk.krylov_solves;
+      CHECK((lk - ld).norm() <= 1e-6 * ld.norm());
+      check_conditions<Dim>(P, lk, 1e-12);
+    }
+  CHECK(krylov_systems > 8);
+}
+
+TEST_CASE("NCP: Auto picks GMRES only above the row threshold", "[contact][ncp]") {
+  auto P = random_problem<3>(40, 0.3, 7);
+  VectorX l1, l2;
+  NcpSolver<3> small, big;
+  small.linear.krylov_min_rows = 1000;  // 120 rows: dense
+  big.linear.krylov_min_rows = 3;       // every coupled set: GMRES
+  const NcpReport r1 = small.solve(P.pts, P.W, P.y0, l1, 1e-13, 100);
+  const NcpReport r2 = big.solve(P.pts, P.W, P.y0, l2, 1e-13, 100);
+  REQUIRE(r1.converged);
+  REQUIRE(r2.converged);
+  CHECK(r1.krylov_solves == 0);
+  CHECK(r2.krylov_solves > 0);
+  CHECK((l1 - l2).norm() <= 1e-6 * l1.norm());
+}
+
+TEMPLATE_TEST_CASE_SIG("NCP: the generalised Jacobian D_y W + D_l matches central finite "
+                       "differences of phi away from its kinks",
+                       "[contact][ncp]", ((int Dim), Dim), 2, 3) {
+  // Random multipliers of both signs and sizes put contacts in every smooth branch: normal
+  // Fischer-Burmeister, sticking, sliding, free (lambda_n < 0) and bilateral rows.
+  int checked = 0, stick = 0, slide = 0;
+  for (unsigned seed = 1; seed <= 20; ++seed) {
+    auto P = random_problem<Dim>(8, 0.5, 300 + seed);
+    std::mt19937 rng(seed);
+    std::normal_distribution<double> g;
+    P.pts[0].bilateral = true;
+    VectorX l(Dim * 8);
+    for (int i = 0; i < l.size(); ++i) l[i] = 20.0 * g(rng);
+    // Skip samples near a kink of the friction projection: | |w| - L | small, w = rho_f lf - u.
+    const VectorX y = P.y0 + P.W * l;
+    bool near_kink = false;
+    for (int c = 1; c < 8; ++c) {
+      double rf = 0;
+      for (int t = 1; t < Dim; ++t) rf += P.W(Dim * c + t, Dim * c + t) / (Dim - 1);
+      const double L = rf * 0.5 * std::max(l[Dim * c], 0.0);
+      const double wn = (rf * l.template segment<Dim - 1>(Dim * c + 1) -
+                         y.template segment<Dim - 1>(Dim * c + 1)).norm();
+      if (std::abs(wn - L) < 1e-3 * (wn + L)) near_kink = true;
+      if (l[Dim * c] > 0) (wn <= L ? stick : slide) += 1;
+    }
+    if (near_kink) continue;
+    NcpSolver<Dim> s;
+    VectorX phi;
+    std::vector<Eigen::Matrix<double, Dim, Dim>> Dy, Dl;
+    s.linearise(P.pts, P.W, P.y0, l, phi, Dy, Dl);
+    const int K = Dim * 8;
+    MatrixX Jac(K, K);
+    for (int c = 0; c < 8; ++c)
+      for (int d = 0; d < 8; ++d) {
+        Jac.template block<Dim, Dim>(Dim * c, Dim * d) =
+            Dy[c] * P.W.template block<Dim, Dim>(Dim * c, Dim * d);
+        if (c == d) Jac.template block<Dim, Dim>(Dim * c, Dim * c) += Dl[c];
+      }
+    MatrixX fd(K, K);
+    const double h = 1e-6 * l.cwiseAbs().maxCoeff();
+    for (int k = 0; k < K; ++k) {
+      VectorX lp = l, lm = l, pp, pm;
+      lp[k] += h;
+      lm[k] -= h;
+      std::vector<Eigen::Matrix<double, Dim, Dim>> a, b;
+      s.linearise(P.pts, P.W, P.y0, lp, pp, a, b);
+      s.linearise(P.pts, P.W, P.y0, lm, pm, a, b);
+      fd.col(k) = (pp - pm) / (2 * h);
+    }
+    INFO("seed " << seed);
+    CHECK((Jac - fd).norm() <= 1e-6 * fd.norm());
+    ++checked;
+  }
+  CHECK(checked >= 10);
+  CHECK(stick > 5);
+  CHECK(slide > 5);
+}
+
 TEST_CASE("NCP: a bilateral attachment is an equality with a free multiplier", "[contact][ncp]") {
   std::vector<ContactPoint<2>> pts(1);
   pts[0].bilateral = true;

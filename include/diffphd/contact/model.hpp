@@ -103,11 +103,17 @@ class NcpContact {
     if (points_.empty()) return;
     const auto t_a = std::chrono::steady_clock::now();
     const VectorX y0 = delassus_.apply_J(q) - offsets_;
+    ncp_.linear.method = options.ncp_linear;
+    ncp_.linear.krylov_min_rows = options.ncp_krylov_min_rows;
+    ncp_.linear.krylov_tolerance = options.ncp_krylov_tolerance;
+    ncp_.linear.krylov_max_iterations = options.ncp_krylov_max_iterations;
     const NcpReport r = ncp_.solve(points_, delassus_.W(), y0, lambda_, options.ncp_tolerance,
                                    options.ncp_max_iterations);
     stats_.ncp_iterations += r.iterations;
     stats_.ncp_ldlt += r.ldlt_solves;
     stats_.ncp_lu += r.lu_solves;
+    stats_.ncp_krylov += r.krylov_solves;
+    stats_.ncp_krylov_iterations += r.krylov_iterations;
     last_ncp_converged_ = r.converged;
     delassus_.add_columns(lambda_, q);
     stats_.seconds_ncp += diffphd::detail::seconds_since(t_a);

@@ -27,6 +27,7 @@
 
 #include <Eigen/Dense>
 
+#include "../linalg/gmres.hpp"
 #include "types.hpp"
 
 namespace diffphd {
@@ -39,6 +40,17 @@ struct NcpReport {
   double residual = 0;       ///< max |phi| at the end (m)
   int ldlt_solves = 0;       ///< Newton systems solved by Cholesky / LDL^T (symmetric)
   int lu_solves = 0;         ///< ... by LU (some contact sliding)
+  int krylov_solves = 0;     ///< ... by GMRES (large coupled sets)
+  int krylov_iterations = 0; ///< GMRES iterations over those
+};
+
+/// \brief How NcpSolver solves its Newton systems (from ContactOptions).
+struct NcpLinearOptions {
+  ContactOptions::NcpLinear method = ContactOptions::NcpLinear::Auto;
+  int krylov_min_rows = ContactOptions{}.ncp_krylov_min_rows;
+  double krylov_tolerance = ContactOptions{}.ncp_krylov_tolerance;
+  int krylov_max_iterations = ContactOptions{}.ncp_krylov_max_iterations;
+  int krylov_restart = 60;
 };
 
 /// \brief Invariants of a contact solution (paper Sec. 6.3).
@@ -56,6 +68,7 @@ template <int Dim>
 class NcpSolver {
  public:
   using Block = Eigen::Matrix<double, Dim, Dim>;
+  NcpLinearOptions linear;
 
   /// \param W  K x K Delassus matrix (K = Dim * points.size())
   /// \param y0 K affine part of the rows (gap rows already minus their targets)
@@ -70,21 +83,15 @@ class NcpSolver {
       return rep;
     }
     if (lambda.size() != K) lambda = VectorX::Zero(K);
-    rho_n_.resize(np);
-    rho_f_.resize(np);
-    for (Index c = 0; c < np; ++c) {
-      rho_n_[c] = std::max(W(Dim * c, Dim * c), 1e-300);
-      double s = 0;
-      for (int t = 1; t < Dim; ++t) s += W(Dim * c + t, Dim * c + t);
-      rho_f_[c] = std::max(s / (Dim - 1), 1e-300);
-    }
+    set_scalings(W, np);
     project(points, lambda);
     VectorX y = y0 + W * lambda, phi(K);
     residual(points, y, lambda, phi, nullptr, nullptr);
     double theta = 0.5 * phi.squaredNorm();
     std::vector<Block> Dy(np), Dl(np);
-    MatrixX Jm;
-    VectorX dl(K), trial(K), ytrial(K), phitrial(K);
+    VectorX dl(K), Wdl(K), trial(K), ytrial(K), phitrial(K);
+    std::vector<Index> coupled;
+    wcc_set_.clear();  // W may be new: gather W_CC afresh
     for (int it = 0;; ++it) {
       rep.residual = phi.cwiseAbs().maxCoeff();
       if (rep.residual <= tolerance) {
@@ -95,60 +102,48 @@ class NcpSolver {
       rep.iterations = it + 1;
       bool sliding = false;
       residual(points, y, lambda, phi, &Dy, &Dl, &sliding);
-      if (!sliding && solve_symmetric(points, W, Dy, Dl, phi, dl)) {
-        ++rep.ldlt_solves;
-      } else {
-        // Contacts whose D_y block vanishes (separated: lambda = 0, delta > 0) decouple:
-        // D_l dl_c = -phi_c. The others form the reduced nonsymmetric system
-        // (D_y W + D_l)_CC dl_C = -phi_C - (D_y W)_CD dl_D.
-        std::vector<Index> coupled;
-        dl.setZero(K);
-        for (Index c = 0; c < np; ++c) {
-          if (Dy[c].isZero(0)) {
-            dl.template segment<Dim>(Dim * c) = Dl[c].partialPivLu().solve(
-                -phi.template segment<Dim>(Dim * c));
-          } else {
-            coupled.push_back(c);
-          }
-        }
-        const Index m = static_cast<Index>(coupled.size());
-        VectorX rhs(Dim * m);
-        for (Index i = 0; i < m; ++i) {
-          const Index c = coupled[i];
-          rhs.template segment<Dim>(Dim * i) =
-              -phi.template segment<Dim>(Dim * c) -
-              Dy[c] * (W.middleRows<Dim>(Dim * c) * dl);  // dl is zero on coupled rows here
-        }
-        {
-          Jm.resize(Dim * m, Dim * m);
-          for (Index i = 0; i < m; ++i) {
-            const Index c = coupled[i];
-            for (Index j = 0; j < m; ++j)
-              Jm.template block<Dim, Dim>(Dim * i, Dim * j).noalias() =
-                  Dy[c] * W.template block<Dim, Dim>(Dim * c, Dim * coupled[j]);
-            Jm.template block<Dim, Dim>(Dim * i, Dim * i) += Dl[c];
-          }
-          Eigen::PartialPivLU<MatrixX> lu(Jm);
-          VectorX x = lu.solve(rhs);
-          // Redundant contacts (two bodies whose vertices coincide touch each other both ways:
-          // 6 rows on the same 3 DoFs) make the Jacobian exactly singular and the LU returns
-          // NaN: take the least-squares minimum-norm step instead.
-          // A (numerically) singular Jacobian shows as a non-finite or inaccurate solution.
-          if (!x.allFinite() || (Jm * x - rhs).norm() > 1e-8 * rhs.norm()) {
-            x = Jm.completeOrthogonalDecomposition().solve(rhs);
-          }
-          for (Index i = 0; i < m; ++i)
-            dl.template segment<Dim>(Dim * coupled[i]) = x.template segment<Dim>(Dim * i);
-          ++rep.lu_solves;
+      // Contacts whose D_y block vanishes (separated: lambda = 0, delta > 0) decouple:
+      // D_l dl_c = -phi_c. The others form the reduced system
+      // (D_y W + D_l)_CC dl_C = -phi_C - D_y (W dl_D)_C.
+      coupled.clear();
+      dl.setZero(K);
+      for (Index c = 0; c < np; ++c) {
+        if (Dy[c].isZero(0)) {
+          dl.template segment<Dim>(Dim * c) =
+              Dl[c].partialPivLu().solve(-phi.template segment<Dim>(Dim * c));
+        } else {
+          coupled.push_back(c);
         }
       }
-      // Armijo backtracking on 1/2 |phi|^2 with the projected trial point.
+      const Index rows = Dim * static_cast<Index>(coupled.size());
+      const bool krylov = rows > 0 && (linear.method == ContactOptions::NcpLinear::Krylov ||
+                                       (linear.method == ContactOptions::NcpLinear::Auto &&
+                                        rows >= linear.krylov_min_rows));
+      const VectorX dl_decoupled = dl;
+      bool solved = false;
+      if (krylov) {
+        int kit = 0;
+        solved = solve_krylov(W, Dy, Dl, phi, coupled, dl, &kit);
+        rep.krylov_iterations += kit;
+        if (solved) ++rep.krylov_solves;
+      }
+      if (!solved && !sliding && solve_symmetric(points, W, Dy, Dl, phi, dl)) {
+        ++rep.ldlt_solves;
+        solved = true;
+      }
+      if (!solved) {
+        dl = dl_decoupled;
+        solve_dense(W, Dy, Dl, phi, coupled, dl);
+        ++rep.lu_solves;
+      }
+      // Armijo backtracking on 1/2 |phi|^2 with the projected trial point. The rows of a trial
+      // are y + step W dl plus W times the projection's corrections (few contacts), so a trial
+      // costs O(K * changed contacts) instead of a full product.
+      add_columns(W, dl, Wdl.setZero());
       double step = 1.0;
       bool accepted = false;
       for (int ls = 0; ls < 30; ++ls) {
-        trial = lambda + step * dl;
-        project(points, trial);
-        ytrial.noalias() = y0 + W * trial;
+        trial_point(points, W, lambda, y, dl, Wdl, step, trial, ytrial);
         residual(points, ytrial, trial, phitrial, nullptr, nullptr);
         const double th = 0.5 * phitrial.squaredNorm();
         if (th <= (1.0 - 1e-4 * step) * theta || th == 0) {
@@ -160,13 +155,15 @@ class NcpSolver {
       if (!accepted) {
         // No decrease along the Newton direction (a kink of the semismooth map): take the full
         // step anyway, the next linearisation sees the other side.
-        trial = lambda + dl;
-        project(points, trial);
-        ytrial.noalias() = y0 + W * trial;
+        trial_point(points, W, lambda, y, dl, Wdl, 1.0, trial, ytrial);
         residual(points, ytrial, trial, phitrial, nullptr, nullptr);
       }
       lambda.swap(trial);
       y.swap(ytrial);
+      if (it % 16 == 15) {  // the incremental rows drift by rounding: refresh them now and then
+        y.noalias() = y0 + W * lambda;
+        residual(points, y, lambda, phitrial, nullptr, nullptr);
+      }
       phi.swap(phitrial);
       theta = 0.5 * phi.squaredNorm();
     }
@@ -201,7 +198,34 @@ class NcpSolver {
     return inv;
   }
 
+  /// The NCP map phi(lambda) at rows y = y0 + W lambda, and its generalised Jacobian
+  /// d phi / d lambda = D_y W + D_l as per-contact Dim x Dim blocks (the Omega and E of eq. 35,
+  /// which the contact adjoint needs). The scalings rho are taken from W's diagonal as in
+  /// solve(). Away from the kinks of the map (|w| = rho mu lambda_n, delta = lambda_n = 0) the
+  /// blocks are its classical derivative (checked against finite differences in the tests).
+  void linearise(const std::vector<ContactPoint<Dim>>& points, const MatrixX& W,
+                 const VectorX& y0, const VectorX& lambda, VectorX& phi, std::vector<Block>& Dy,
+                 std::vector<Block>& Dl) {
+    const Index np = static_cast<Index>(points.size());
+    set_scalings(W, np);
+    Dy.resize(np);
+    Dl.resize(np);
+    const VectorX y = y0 + W * lambda;
+    residual(points, y, lambda, phi, &Dy, &Dl);
+  }
+
  private:
+  void set_scalings(const MatrixX& W, Index np) {
+    rho_n_.resize(np);
+    rho_f_.resize(np);
+    for (Index c = 0; c < np; ++c) {
+      rho_n_[c] = std::max(W(Dim * c, Dim * c), 1e-300);
+      double s = 0;
+      for (int t = 1; t < Dim; ++t) s += W(Dim * c + t, Dim * c + t);
+      rho_f_[c] = std::max(s / (Dim - 1), 1e-300);
+    }
+  }
+
   /// phi (and optionally its Newton blocks) at (y, lambda).
   void residual(const std::vector<ContactPoint<Dim>>& points, const VectorX& y,
                 const VectorX& lambda, VectorX& phi, std::vector<Block>* Dy,
@@ -263,18 +287,122 @@ class NcpSolver {
     }
   }
 
-  /// lambda_n >= 0 for unilateral contacts; lambda_f inside its cone.
-  static void project(const std::vector<ContactPoint<Dim>>& points, VectorX& lambda) {
-    for (Index c = 0; c < static_cast<Index>(points.size()); ++c) {
-      const auto& p = points[c];
-      if (p.bilateral) continue;
-      const Index r = Dim * c;
-      lambda[r] = std::max(lambda[r], 0.0);
-      auto lf = lambda.template segment<Dim - 1>(r + 1);
-      const double cone = p.friction * lambda[r];
-      const double n = lf.norm();
-      if (n > cone) lf *= (n > 0 ? cone / n : 0.0);
+  /// out += W d, through the columns of the contacts where d is nonzero.
+  static void add_columns(const MatrixX& W, const VectorX& d, VectorX& out) {
+    const Index np = d.size() / Dim;
+    for (Index c = 0; c < np; ++c) {
+      const auto dc = d.template segment<Dim>(Dim * c);
+      if (dc.isZero(0)) continue;
+      out.noalias() += W.template middleCols<Dim>(Dim * c) * dc;
     }
+  }
+
+  /// trial = Pi(lambda + step dl) and its rows y + W (trial - lambda).
+  static void trial_point(const std::vector<ContactPoint<Dim>>& points, const MatrixX& W,
+                          const VectorX& lambda, const VectorX& y, const VectorX& dl,
+                          const VectorX& Wdl, double step, VectorX& trial, VectorX& ytrial) {
+    trial = lambda + step * dl;
+    ytrial = y + step * Wdl;
+    for (Index c = 0; c < static_cast<Index>(points.size()); ++c) {
+      Eigen::Matrix<double, Dim, 1> before = trial.template segment<Dim>(Dim * c);
+      project_one(points[c], trial.template segment<Dim>(Dim * c));
+      const Eigen::Matrix<double, Dim, 1> corr = trial.template segment<Dim>(Dim * c) - before;
+      if (!corr.isZero(0)) ytrial.noalias() += W.template middleCols<Dim>(Dim * c) * corr;
+    }
+  }
+
+  /// The reduced nonsymmetric system by partial-pivoting LU (least squares when singular).
+  static void solve_dense(const MatrixX& W, const std::vector<Block>& Dy,
+                          const std::vector<Block>& Dl, const VectorX& phi,
+                          const std::vector<Index>& coupled, VectorX& dl) {
+    const Index m = static_cast<Index>(coupled.size());
+    if (m == 0) return;
+    VectorX Wd = VectorX::Zero(dl.size());
+    add_columns(W, dl, Wd);  // dl holds the decoupled part only
+    VectorX rhs(Dim * m);
+    MatrixX Jm(Dim * m, Dim * m);
+    for (Index i = 0; i < m; ++i) {
+      const Index c = coupled[i];
+      rhs.template segment<Dim>(Dim * i) =
+          -phi.template segment<Dim>(Dim * c) - Dy[c] * Wd.template segment<Dim>(Dim * c);
+      for (Index j = 0; j < m; ++j)
+        Jm.template block<Dim, Dim>(Dim * i, Dim * j).noalias() =
+            Dy[c] * W.template block<Dim, Dim>(Dim * c, Dim * coupled[j]);
+      Jm.template block<Dim, Dim>(Dim * i, Dim * i) += Dl[c];
+    }
+    Eigen::PartialPivLU<MatrixX> lu(Jm);
+    VectorX x = lu.solve(rhs);
+    // Redundant contacts (two bodies whose vertices coincide touch each other both ways: 6 rows
+    // on the same 3 DoFs) make the Jacobian exactly singular and the LU returns NaN: take the
+    // least-squares minimum-norm step instead. A (numerically) singular Jacobian shows as a
+    // non-finite or inaccurate solution.
+    if (!x.allFinite() || (Jm * x - rhs).norm() > 1e-8 * rhs.norm())
+      x = Jm.completeOrthogonalDecomposition().solve(rhs);
+    for (Index i = 0; i < m; ++i)
+      dl.template segment<Dim>(Dim * coupled[i]) = x.template segment<Dim>(Dim * i);
+  }
+
+  /// The reduced system by GMRES on products with W_CC (gathered once per coupled set),
+  /// left-preconditioned by the inverses of its Dim x Dim diagonal blocks. False when GMRES
+  /// did not reach a useful accuracy (the caller falls back to a dense solve).
+  bool solve_krylov(const MatrixX& W, const std::vector<Block>& Dy, const std::vector<Block>& Dl,
+                    const VectorX& phi, const std::vector<Index>& coupled, VectorX& dl,
+                    int* iterations) {
+    const Index m = static_cast<Index>(coupled.size());
+    if (coupled != wcc_set_) {
+      wcc_.resize(Dim * m, Dim * m);
+      for (Index j = 0; j < m; ++j)
+        for (Index i = 0; i < m; ++i)
+          wcc_.template block<Dim, Dim>(Dim * i, Dim * j) =
+              W.template block<Dim, Dim>(Dim * coupled[i], Dim * coupled[j]);
+      wcc_set_ = coupled;
+    }
+    VectorX Wd = VectorX::Zero(dl.size());
+    add_columns(W, dl, Wd);
+    std::vector<Block> P(m);
+    VectorX b(Dim * m);
+    for (Index i = 0; i < m; ++i) {
+      const Index c = coupled[i];
+      const Block d = Dy[c] * wcc_.template block<Dim, Dim>(Dim * i, Dim * i) + Dl[c];
+      Eigen::FullPivLU<Block> lu(d);
+      P[i] = lu.isInvertible() ? Block(lu.inverse()) : Block(Block::Identity());
+      b.template segment<Dim>(Dim * i) =
+          P[i] * (-phi.template segment<Dim>(Dim * c) - Dy[c] * Wd.template segment<Dim>(Dim * c));
+    }
+    VectorX t(Dim * m), out(Dim * m);
+    auto op = [&](const VectorX& x) -> VectorX {
+      t.noalias() = wcc_ * x;
+      for (Index i = 0; i < m; ++i) {
+        const Index c = coupled[i];
+        out.template segment<Dim>(Dim * i) =
+            P[i] * (Dy[c] * t.template segment<Dim>(Dim * i) +
+                    Dl[c] * x.template segment<Dim>(Dim * i));
+      }
+      return out;
+    };
+    VectorX x = VectorX::Zero(Dim * m);
+    double relres = 1;
+    *iterations = detail::gmres(op, b, x, linear.krylov_tolerance, linear.krylov_max_iterations,
+                                linear.krylov_restart, &relres);
+    if (!x.allFinite() || !(relres <= std::max(1e-2, linear.krylov_tolerance))) return false;
+    for (Index i = 0; i < m; ++i)
+      dl.template segment<Dim>(Dim * coupled[i]) = x.template segment<Dim>(Dim * i);
+    return true;
+  }
+
+  /// lambda_n >= 0 for unilateral contacts; lambda_f inside its cone.
+  template <class Seg>
+  static void project_one(const ContactPoint<Dim>& p, Seg&& l) {
+    if (p.bilateral) return;
+    l[0] = std::max(l[0], 0.0);
+    auto lf = l.template tail<Dim - 1>();
+    const double cone = p.friction * l[0];
+    const double n = lf.norm();
+    if (n > cone) lf *= (n > 0 ? cone / n : 0.0);
+  }
+  static void project(const std::vector<ContactPoint<Dim>>& points, VectorX& lambda) {
+    for (Index c = 0; c < static_cast<Index>(points.size()); ++c)
+      project_one(points[c], lambda.template segment<Dim>(Dim * c));
   }
 
   /// The symmetric path: D_y, D_l diagonal (no contact sliding). Rows with D_y = 0 decouple:
@@ -335,6 +463,8 @@ class NcpSolver {
   }
 
   std::vector<double> rho_n_, rho_f_;
+  MatrixX wcc_;                  ///< W on the coupled contacts of the last Krylov solve
+  std::vector<Index> wcc_set_;   ///< ... and those contacts
 };
 
 }  // namespace contact

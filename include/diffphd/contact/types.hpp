@@ -93,6 +93,14 @@ struct ContactOptions {
   double restitution_threshold = 0.05;
   /// How W = J A^-1 J^T is built: from columns A^-1 e_v by triangular solves, or Y = S J^T.
   enum class Delassus { Auto, Solves, InverseFactor } delassus = Delassus::Auto;
+  /// How the NCP's Newton systems are solved: dense (Cholesky / LU, O(m^3) in the coupled
+  /// rows m), matrix-free GMRES on products with W (O(m^2) per iteration, block-Jacobi
+  /// preconditioned), or Auto: dense below ncp_krylov_min_rows coupled rows, GMRES above.
+  enum class NcpLinear { Auto, Dense, Krylov } ncp_linear = NcpLinear::Auto;
+  int ncp_krylov_min_rows = 600;
+  /// Relative residual of the GMRES solves (inexact Newton; the Armijo search guards it).
+  double ncp_krylov_tolerance = 1e-6;
+  int ncp_krylov_max_iterations = 400;
 };
 
 /// \brief Contact diagnostics of one step (paper Sec. 6.3), in StepReport::contact.
@@ -108,6 +116,8 @@ struct ContactStepStats {
   int ncp_iterations = 0;         ///< semismooth Newton iterations summed over PD iterations
   int ncp_unconverged = 0;        ///< PD iterations whose NCP stopped at its iteration cap
   int ncp_ldlt = 0, ncp_lu = 0;   ///< Newton systems by Cholesky (symmetric) and LU (sliding)
+  int ncp_krylov = 0;             ///< Newton systems by GMRES (large coupled sets)
+  int ncp_krylov_iterations = 0;  ///< GMRES iterations summed over those systems
   int redetections = 0;           ///< times the step was redone with missed contacts added
   double seconds_detection = 0, seconds_delassus = 0, seconds_ncp = 0;
 };

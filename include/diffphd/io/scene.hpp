@@ -357,6 +357,8 @@ struct ContactSpec {
   int max_redetections = contact::ContactOptions{}.max_redetections;               ///< >= 0
   double restitution_threshold = contact::ContactOptions{}.restitution_threshold;  ///< m/s, >= 0
   contact::ContactOptions::Delassus delassus = contact::ContactOptions{}.delassus;
+  contact::ContactOptions::NcpLinear ncp_linear = contact::ContactOptions{}.ncp_linear;
+  int ncp_krylov_min_rows = contact::ContactOptions{}.ncp_krylov_min_rows;  ///< >= 1
 };
 
 /// \brief Solver configuration. Defaults follow the paper (Sec. 4.3, 4.5, 5).
@@ -460,6 +462,8 @@ inline contact::ContactOptions contact_options(const SceneSpec& scene) {
   o.max_redetections = c.max_redetections;
   o.restitution_threshold = c.restitution_threshold;
   o.delassus = c.delassus;
+  o.ncp_linear = c.ncp_linear;
+  o.ncp_krylov_min_rows = c.ncp_krylov_min_rows;
   return o;
 }
 
@@ -1219,7 +1223,8 @@ inline ContactSpec parse_contact(const Parser& p, const json& root, int bodies) 
   p.expect_object(j, path,
                   {"distance", "mesh_contact", "self_contact", "friction", "restitution",
                    "ncp_tolerance", "ncp_max_iterations", "penetration_tolerance",
-                   "max_redetections", "restitution_threshold", "delassus"});
+                   "max_redetections", "restitution_threshold", "delassus", "ncp_linear",
+                   "ncp_krylov_min_rows"});
   c.given = true;
   c.distance = p.number(j, path, "distance", c.distance);
   p.positive(c.distance, "contact.distance");
@@ -1255,6 +1260,22 @@ inline ContactSpec parse_contact(const Parser& p, const json& root, int bodies) 
       p.fail("contact.delassus", "unknown Delassus method \"" + d +
                                      "\" (expected \"auto\", \"solves\" or \"inverse-factor\")");
   }
+  if (j.contains("ncp_linear")) {
+    using L = contact::ContactOptions::NcpLinear;
+    const std::string d = p.string(j.at("ncp_linear"), "contact.ncp_linear");
+    if (d == "auto")
+      c.ncp_linear = L::Auto;
+    else if (d == "dense")
+      c.ncp_linear = L::Dense;
+    else if (d == "krylov")
+      c.ncp_linear = L::Krylov;
+    else
+      p.fail("contact.ncp_linear", "unknown NCP linear solver \"" + d +
+                                       "\" (expected \"auto\", \"dense\" or \"krylov\")");
+  }
+  const long kr = p.integer(j, path, "ncp_krylov_min_rows", c.ncp_krylov_min_rows);
+  p.at_least(kr, 1, "contact.ncp_krylov_min_rows");
+  c.ncp_krylov_min_rows = static_cast<int>(std::min<long>(kr, 1'000'000'000));
   return c;
 }
 
