@@ -4,7 +4,8 @@ fraction of vertices in contact (docs/benchmarks-contact.md).
 
 Runs `diffphd run` on the shipped 25x25 napkin scenes (scenes/napkin_sphere_*.json) and on 50x50
 copies of them (written to OUT/scenes/, cells [50, 50]), reads each run's stats.csv and writes
-OUT/results-contact.csv (one row per scene) and, with matplotlib, OUT/contact_napkin.png.
+OUT/results-contact-SIZES.csv (one row per scene) and, with matplotlib,
+OUT/contact_napkin_SIZES.png (SIZES: the --sizes list, e.g. 25_50).
 
 Usage: scripts/bench_contact.py [--diffphd build/examples/diffphd] [--out bench/contact]
        [--frames 60] [--frames-50 20] [--sizes 25,50] [--timeout 1800]
@@ -59,6 +60,8 @@ def summarise(stats_path, vertices):
         "max_cone_violation": max(float(r["cone_violation"]) for r in rows) if rows else 0,
         "ncp_lu": sum(int(r["ncp_lu"]) for r in rows),
         "ncp_cholesky": sum(int(r["ncp_ldlt"]) for r in rows),
+        "ncp_krylov": sum(int(r.get("ncp_krylov", 0) or 0) for r in rows),
+        "ncp_krylov_iterations": sum(int(r.get("ncp_krylov_iterations", 0) or 0) for r in rows),
         "seconds_ncp": sum(float(r["seconds_ncp"]) for r in rows),
         "seconds_delassus": sum(float(r["seconds_delassus"]) for r in rows),
         "seconds_total": sum(t),
@@ -111,7 +114,8 @@ def main():
         for k in r:
             if k not in keys:
                 keys.append(k)
-    out_csv = os.path.join(a.out, "results-contact.csv")
+    tag = a.sizes.replace(",", "_")
+    out_csv = os.path.join(a.out, "results-contact-%s.csv" % tag)
     with open(out_csv, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys)
         w.writeheader()
@@ -144,7 +148,7 @@ def main():
         x.legend()
         x.grid(alpha=0.3)
     fig.tight_layout()
-    png = os.path.join(a.out, "contact_napkin.png")
+    png = os.path.join(a.out, "contact_napkin_%s.png" % tag)
     fig.savefig(png, dpi=110)
     print("bench_contact: wrote " + png, file=sys.stderr)
 

@@ -176,3 +176,50 @@ TEST_CASE("contact: an attachment holds its vertex at the target as a bilateral 
   // The rest of the block fell (it hangs).
   CHECK(centre_of_mass(sim)[1] < 0.05 - 1e-3);
 }
+
+TEST_CASE("contact: colliders set through the library API are validated with clear messages",
+          "[contact][solver]") {
+  const auto mesh = block_on_incline(0.0);
+  MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000});
+  const SolverOptions o = tight_options(1.0 / 60);
+  using Catch::Matchers::Contains;
+  {
+    ContactSolver sim(mesh, mats, o);
+    Collider<3> ball;
+    ball.kind = Collider<3>::Kind::Sphere;
+    ball.name = "ball";
+    ball.radius = -0.5;
+    sim.contact().colliders.push_back(ball);
+    CHECK_THROWS_WITH(sim.step(), Contains("collider 0 (\"ball\"): radius must be > 0"));
+  }
+  {
+    ContactSolver sim(mesh, mats, o);
+    Collider<3> plane;
+    plane.normal.setZero();
+    sim.contact().colliders.push_back(plane);
+    CHECK_THROWS_WITH(sim.step(), Contains("collider 0: normal must be a non-zero"));
+  }
+  {
+    ContactSolver sim(mesh, mats, o);
+    Collider<3> rough, plane;
+    rough.friction = -0.1;
+    sim.contact().colliders.push_back(plane);
+    sim.contact().colliders.push_back(rough);
+    CHECK_THROWS_WITH(sim.step(), Contains("collider 1: friction must be >= 0"));
+  }
+  {
+    // A half-space normal of any length is normalised: same steps as the unit normal.
+    ContactSolver a(mesh, mats, o), b(mesh, mats, o);
+    Collider<3> unit, longer;
+    unit.point = longer.point = Vec<3>(0, -1e-3, 0);
+    longer.normal = Vec<3>(0, 2.5, 0);
+    a.contact().colliders.push_back(unit);
+    b.contact().colliders.push_back(longer);
+    for (int i = 0; i < 5; ++i) {
+      a.step();
+      b.step();
+    }
+    CHECK(b.contact().colliders[0].normal.norm() == Approx(1.0).epsilon(1e-15));
+    CHECK((a.positions() - b.positions()).norm() == 0.0);
+  }
+}

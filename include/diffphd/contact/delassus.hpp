@@ -20,6 +20,7 @@
 #include <vector>
 
 #include <Eigen/Dense>
+#include <Eigen/Sparse>
 
 #include "../core/errors.hpp"
 #include "../linalg/pd_system.hpp"
@@ -54,18 +55,21 @@ class Delassus {
         if (slot.emplace(v, static_cast<Index>(verts_.size())).second) verts_.push_back(v);
       }
     const Index nu = static_cast<Index>(verts_.size());
-    // B_k (nu x K): stencil weights times direction component k.
-    for (int k = 0; k < Dim; ++k) B_[k] = MatrixX::Zero(nu, K_);
-    for (Index c = 0; c < np; ++c) {
-      const auto& p = points[c];
-      for (int i = 0; i < p.count; ++i) {
-        const Index u = slot[p.vertices[i]];
-        for (int k = 0; k < Dim; ++k) {
-          B_[k](u, Dim * c) += p.weights[i] * p.normal[k];
+    // B_k (nu x K, sparse: a column has the point's stencil): weights times direction k.
+    for (int k = 0; k < Dim; ++k) {
+      std::vector<Eigen::Triplet<double>> tr;
+      tr.reserve(static_cast<size_t>(K_) * (Dim + 1));
+      for (Index c = 0; c < np; ++c) {
+        const auto& p = points[c];
+        for (int i = 0; i < p.count; ++i) {
+          const Index u = slot[p.vertices[i]];
+          tr.emplace_back(u, Dim * c, p.weights[i] * p.normal[k]);
           for (int t = 0; t < Dim - 1; ++t)
-            B_[k](u, Dim * c + 1 + t) += p.weights[i] * p.tangents(k, t);
+            tr.emplace_back(u, Dim * c + 1 + t, p.weights[i] * p.tangents(k, t));
         }
       }
+      B_[k].resize(nu, K_);
+      B_[k].setFromTriplets(tr.begin(), tr.end());  // duplicates (repeated stencil) are summed
     }
     // Columns per factor group.
     const int ng = sys.num_factors();
@@ -106,7 +110,10 @@ class Delassus {
             Gsub(u, w) = G.row_of[u] >= 0 ? G.C(G.row_of[u], w) : 0.0;
         Gsub = 0.5 * (Gsub + Gsub.transpose()).eval();  // exact symmetry for the LDL^T
       }
-      for (int k : G.axes) W_.noalias() += B_[k].transpose() * Gsub * B_[k];
+      for (int k : G.axes) {
+        const MatrixX GB = Gsub * B_[k];  // nu x K (dense times sparse: nu x nnz(B_k))
+        W_.noalias() += B_[k].transpose() * GB;
+      }
     }
   }
 
@@ -158,7 +165,7 @@ class Delassus {
   Method method_ = Method::Solves;
   Index nv_ = 0, K_ = 0;
   std::vector<Index> verts_;
-  std::array<MatrixX, Dim> B_;
+  std::array<Eigen::SparseMatrix<double>, Dim> B_;
   std::vector<Group> groups_;
   MatrixX W_;
 };
