@@ -198,9 +198,14 @@ def plot_speed_vs_accuracy(rows, styles, out_dir, written):
             continue
         has_same = any(positive(num(r, "max_rel_error_same_model")) and
                        positive(num(r, "median_ms_per_step")) for r in prow)
-        panels = [("max_rel_error",
-                   "max rel. error vs Newton reference (true Neo-Hookean) [-]",
-                   "error to true model")]
+        # Contact scenes have no Newton reference (the Newton baseline has no contact model):
+        # no finite max_rel_error anywhere, so only the same-model panel is drawn.
+        has_newton = any(positive(num(r, "max_rel_error")) for r in prow)
+        panels = []
+        if has_newton or not has_same:
+            panels.append(("max_rel_error",
+                           "max rel. error vs Newton reference (true Neo-Hookean) [-]",
+                           "error to true model"))
         if has_same:
             panels.append(("max_rel_error_same_model",
                            "max rel. error vs tight run of same PD model [-]",
