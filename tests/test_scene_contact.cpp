@@ -920,7 +920,9 @@ TEST_CASE("shipped contact scenes: napkins over spheres", "[scene][contact]") {
     const MaterialField f = io::build_materials<3>(s, m);
     CHECK(f.youngs_moduli().maxCoeff() == 5e4);
     if (std::string(name) == "napkin_sphere_hetero") {
-      CHECK(ball.radius == io::load_scene(kScenes + "napkin_sphere_24.json").colliders[0].radius);
+      // The first napkin_sphere_24's sphere: with its soft half the sheet drapes further and
+      // peaks at 22.9% contact (measured), the 24% scene's nominal fraction.
+      CHECK(ball.radius == 0.39);
       // x > 0 at 0.1x: the 12 columns of cells right of the middle one, and the middle one
       // (its centroids straddle x = 0).
       const Index soft = (f.youngs_moduli().array() == 5e3).count();

@@ -309,6 +309,21 @@ bool excluded_self(const SimplicialMesh<Dim>& mesh, Index v, Index f, double rad
   return cp.squared_distance <= radius * radius;
 }
 
+/// The facet filter shared by detection and the penetration check: vertex v (body bv) may
+/// touch boundary facet f (body bf) when the options allow that pair of bodies (mesh contact
+/// between different bodies, self contact inside one), v is not a vertex of f, and a self
+/// contact is not excluded by the rest-distance rule.
+template <int Dim>
+bool facet_pair_allowed(const SimplicialMesh<Dim>& mesh, const ContactOptions& opt, Index v,
+                        int bv, Index f, int bf, double cd) {
+  const auto& F = mesh.boundary_facets();
+  const bool same = bf == bv;
+  if (same ? !opt.self_contact : !opt.mesh_contact) return false;
+  for (int j = 0; j < Dim; ++j)
+    if (F(f, j) == v) return false;
+  return !(same && excluded_self(mesh, v, f, 2 * cd));
+}
+
 /// A candidate mesh contact of one vertex.
 template <int Dim>
 struct MeshCandidate {
@@ -465,12 +480,7 @@ std::vector<ContactPoint<Dim>> detect_contacts(const DetectionInput<Dim>& in) {
       const int bv = body(v);
       for (Index f : cand) {
         const int bf = facet_body[f];
-        const bool same = bf == bv;
-        if (same ? !opt.self_contact : !opt.mesh_contact) continue;
-        bool contains = false;
-        for (int j = 0; j < Dim; ++j) contains |= F(f, j) == v;
-        if (contains) continue;
-        if (same && excluded_self(mesh, v, f, 2 * cd)) continue;
+        if (!facet_pair_allowed(mesh, opt, v, bv, f, bf, cd)) continue;
         bool all_fixed = fixed(v);
         for (int j = 0; j < Dim && all_fixed; ++j) all_fixed = fixed(F(f, j));
         if (all_fixed) continue;
@@ -623,12 +633,7 @@ PenetrationReport<Dim> worst_penetration(const SimplicialMesh<Dim>& mesh,
       const int bv = body(v);
       for (Index f : cand) {
         const int bf = facet_body[f];
-        const bool same = bf == bv;
-        if (same ? !options.self_contact : !options.mesh_contact) continue;
-        bool contains = false;
-        for (int j = 0; j < Dim; ++j) contains |= F(f, j) == v;
-        if (contains) continue;
-        if (same && excluded_self(mesh, v, f, 2 * cd)) continue;
+        if (!facet_pair_allowed(mesh, options, v, bv, f, bf, cd)) continue;
         const auto fv = facet_vertices<Dim>(F, f, q);
         const Vec<Dim> n = facet_normal<Dim>(fv);
         if (n.squaredNorm() == 0) continue;

@@ -366,6 +366,7 @@ struct SolverSpec {
   EnergyKind energy = EnergyKind::CorotatedVolume;
   Routing routing = Routing::StiffnessAware;
   int anderson_window = -1;  ///< -1: automatic (m = 1 heterogeneous, 5 homogeneous); 0: off
+  double anderson_reset = 10.0;  ///< discard the AA history when |gamma| exceeds this (> 0)
   double eps_rel = 1e-4;     ///< dual-gate relative tolerance, eq. (22), > 0
   double eps_abs = 1e-8;     ///< dual-gate absolute tolerance, eq. (22), >= 0
   Gate gate = Gate::Paper;   ///< what eps_rel is relative to
@@ -1530,8 +1531,8 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
     const json& j = root.at("solver");
     const std::string path = "solver";
     p.expect_object(j, path,
-                    {"energy", "routing", "anderson_window", "eps_rel", "eps_abs", "gate",
-                     "max_iterations", "damping"});
+                    {"energy", "routing", "anderson_window", "anderson_reset", "eps_rel",
+                     "eps_abs", "gate", "max_iterations", "damping"});
     SolverSpec& sv = s.solver;
     if (j.contains("energy")) {
       const std::string e = p.string(j.at("energy"), "solver.energy");
@@ -1570,6 +1571,8 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
       p.fail("solver.anderson_window",
              "must be -1 (automatic), 0 (off) or a window of 1..64, found " + std::to_string(m));
     sv.anderson_window = static_cast<int>(m);
+    sv.anderson_reset = p.number(j, path, "anderson_reset", sv.anderson_reset);
+    p.positive(sv.anderson_reset, "solver.anderson_reset");
     sv.eps_rel = p.number(j, path, "eps_rel", sv.eps_rel);
     p.positive(sv.eps_rel, "solver.eps_rel");
     sv.eps_abs = p.number(j, path, "eps_abs", sv.eps_abs);

@@ -32,10 +32,6 @@ inline int region_label(const io::SceneSpec& scene, const std::string& name) {
   throw InputError("no region \"" + name + "\"", scene.file);
 }
 
-inline double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
 template <int Dim>
 Vec<Dim> rest_center(const SimplicialMesh<Dim>& mesh, const VectorX& mass) {
   Vec<Dim> c = Vec<Dim>::Zero();
@@ -162,12 +158,12 @@ class SceneTask {
     apply(x);
     const auto t0 = std::chrono::steady_clock::now();
     const double L = rollout_.forward(controls_, loss_fn());
-    seconds_forward_ += scene_task_detail::seconds_since(t0);
+    seconds_forward_ += diffphd::detail::seconds_since(t0);
     unconverged_forward_ += unconverged_in(rollout_.forward_reports());
     if (!grad) return L;
     const auto t1 = std::chrono::steady_clock::now();
     const RolloutGradient<Dim> g = rollout_.backward();
-    seconds_backward_ += scene_task_detail::seconds_since(t1);
+    seconds_backward_ += diffphd::detail::seconds_since(t1);
     unconverged_backward_ += g.unconverged_adjoints;
     *grad = to_x_gradient(x, g);
     return L;
@@ -486,7 +482,7 @@ TaskResult optimize_task(const TaskSpec& task,
   out.seconds_backward = st.seconds_backward();
   out.unconverged_forward_steps = st.unconverged_forward_steps();
   out.unconverged_backward_steps = st.unconverged_backward_steps();
-  out.seconds = scene_task_detail::seconds_since(t0);
+  out.seconds = diffphd::detail::seconds_since(t0);
   return out;
 }
 
@@ -611,11 +607,11 @@ GradcheckResult gradcheck_scene(const io::SceneSpec& scene, const std::string& k
     s.set_options(o);
     const auto t0 = std::chrono::steady_clock::now();
     const double L = roll.forward(p.c, loss);
-    res.seconds_forward += scene_task_detail::seconds_since(t0);
+    res.seconds_forward += diffphd::detail::seconds_since(t0);
     if (g) {
       const auto t1 = std::chrono::steady_clock::now();
       *g = roll.backward();
-      res.seconds_backward += scene_task_detail::seconds_since(t1);
+      res.seconds_backward += diffphd::detail::seconds_since(t1);
     }
     return L;
   };

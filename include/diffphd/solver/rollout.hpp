@@ -144,7 +144,7 @@ class Rollout {
     final_v_ = solver_.velocities();
     loss_value_ = L;
     peak_doubles_ = held_doubles();
-    seconds_forward_ = seconds_since(t0);
+    seconds_forward_ = diffphd::detail::seconds_since(t0);
     have_forward_ = true;
     return L;
   }
@@ -214,7 +214,7 @@ class Rollout {
       if (a.size() == g.dactivation_constant.size()) g.dactivation_constant += a;
     if (mat) g.material = material_gradient(solver_, *mat);
     g.peak_cache_doubles = peak;
-    g.seconds_backward = seconds_since(t0);
+    g.seconds_backward = diffphd::detail::seconds_since(t0);
     return g;
   }
 
@@ -223,10 +223,6 @@ class Rollout {
     double t;
     VertexMatrix<Dim> q, v;
   };
-
-  static double seconds_since(std::chrono::steady_clock::time_point t0) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  }
 
   void check_controls(const RolloutControls<Dim>& c) const {
     const Index nv = solver_.mesh().num_vertices(), ne = solver_.mesh().num_elements();

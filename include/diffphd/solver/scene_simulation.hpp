@@ -83,6 +83,7 @@ inline SolverOptions scene_solver_options(const io::SceneSpec& scene, int dim,
   so.alpha = scene.solver.alpha;
   so.beta0 = scene.solver.beta0;
   so.anderson_window = over.anderson.value_or(scene.solver.anderson_window);
+  so.anderson_reset = scene.solver.anderson_reset;
   so.eps_rel = over.eps_rel.value_or(scene.solver.eps_rel);
   so.eps_abs = scene.solver.eps_abs;
   so.max_iterations = over.max_iterations.value_or(scene.solver.max_iterations);
