@@ -452,6 +452,17 @@ class Solver {
     rep.aa_resets += mixer_.resets();
     if constexpr (kHasContact) {
       if (contact_active_) {
+        // A converged step with contact rows ends on T(q) = global + contact solve from the
+        // converged iterate (b is b(q): the local step of the gate's iteration), not on the
+        // Anderson extrapolation itself: the accepted state then satisfies the contact
+        // conditions to the NCP tolerance (the extrapolation alone left 1e-5 m of
+        // complementarity on one napkin step). One global solve and one NCP solve per step.
+        if (rep.status == StepStatus::Converged && contact_.active()) {
+          Backend::template apply_inverse<Dim>(system_, b, xfix_, qhat);
+          contact_.project(qhat);
+          impose(qhat);
+          if (Backend::all_finite(qhat, &bad)) std::swap(q, qhat);
+        }
         VertexMatrix<Dim> qm(nv_, Dim);
         Eigen::Map<Vector>(qm.data(), n) = q;
         const auto pen = contact_.finish_step(q, qm);
