@@ -716,6 +716,22 @@ TEST_CASE("multi-body and contact input errors name the file and the JSON path",
        },
        {"contact.delassus: unknown Delassus method \"cholesky\" (expected \"auto\", \"solves\" "
         "or \"inverse-factor\")"}},
+      {"contact ncp_linear",
+       [](json& j) {
+         j["contact"] = {{"ncp_linear", "gmres"}};
+       },
+       {"contact.ncp_linear: unknown NCP linear solver \"gmres\" (expected \"auto\", "
+        "\"dense\" or \"krylov\")"}},
+      {"contact ncp_krylov_min_rows",
+       [](json& j) {
+         j["contact"] = {{"ncp_krylov_min_rows", 0}};
+       },
+       {"contact.ncp_krylov_min_rows: must be >= 1, found 0"}},
+      {"solver anderson_reset",
+       [](json& j) {
+         j["solver"] = {{"anderson_reset", 0}};
+       },
+       {"solver.anderson_reset: must be > 0, found 0"}},
       {"misspelt contact key",
        [](json& j) {
          j["contact"] = {{"distanse", 0.01}};
