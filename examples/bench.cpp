@@ -57,8 +57,10 @@ void write_csv(const std::string& path, const std::vector<Row>& rows) {
 int cmd_bench(const BenchOptions& opt) {
   namespace fs = std::filesystem;
   for (const std::string& m : opt.methods)
-    if (m != "diffphd" && m != "pd" && m != "newton")
-      throw InputError("--methods: unknown method \"" + m + "\" (diffphd, pd, newton)");
+    if (m != "diffphd" && m != "pd" && m != "newton" && m != "newton-krylov" && m != "lbfgs" &&
+        m != "pd-anderson")
+      throw InputError("--methods: unknown method \"" + m +
+                       "\" (diffphd, pd, newton, newton-krylov, lbfgs, pd-anderson)");
   if (opt.tolerances.empty()) throw InputError("--tolerances: give at least one");
   for (double t : opt.tolerances)
     if (!(t > 0 && std::isfinite(t))) throw InputError("--tolerances: must be > 0");
@@ -77,7 +79,9 @@ int cmd_bench(const BenchOptions& opt) {
   auto runs = [&](const char* m) {
     return std::find(opt.methods.begin(), opt.methods.end(), m) != opt.methods.end();
   };
-  const bool need_diffphd_ref = runs("diffphd") || opt.features, need_pd_ref = runs("pd");
+  const bool need_diffphd_ref = runs("diffphd") || runs("newton-krylov") || runs("lbfgs") ||
+                                runs("pd-anderson") || opt.features,
+             need_pd_ref = runs("pd");
   const long runs_per_contrast = 1 + need_diffphd_ref + need_pd_ref +
                                  static_cast<long>(opt.methods.size() * opt.tolerances.size()) +
                                  (opt.features ? 8 : 0);
@@ -111,10 +115,13 @@ int cmd_bench(const BenchOptions& opt) {
                 << "x: " << ref.converged_steps << "/" << ref.steps << " steps converged ("
                 << ref.status << ")\n";
     // The same-model references: each PD configuration converged tightly (solver error only).
+    // Direct Newton on the PD potential Phi itself (sparse Cholesky of the projected Hessian):
+    // converges in a few iterations where a tight PD run may never (docs/solver.md, "Methods").
     auto model_reference = [&](bool uniform) {
       SceneOverrides o;
       o.eps_rel = opt.model_reference_eps;
       o.max_iterations = opt.model_reference_max_iterations;
+      o.method = SolverMethod::NewtonDirect;
       if (uniform) o.routing = io::Routing::Uniform;
       return bench_pd_dispatch(scene, o, frames);
     };
@@ -184,7 +191,11 @@ int cmd_bench(const BenchOptions& opt) {
           if (m == "pd") {
             o.anderson = 0;
             o.routing = io::Routing::Uniform;
+            o.method = SolverMethod::PD;
           }
+          if (m == "pd-anderson") o.method = SolverMethod::PD;
+          if (m == "newton-krylov") o.method = SolverMethod::NewtonKrylov;
+          if (m == "lbfgs") o.method = SolverMethod::LBFGS;
           add(m, tol, bench_pd_dispatch(scene, o, frames), m == "pd");
         }
       }

@@ -15,7 +15,7 @@ struct BenchOptions {
   std::optional<int> frames;      ///< default: the scene's
   std::string out_dir;
   double reference_tolerance = 1e-10;  ///< Newton reference gradient tolerance
-  double model_reference_eps = 1e-9;   ///< eps_rel of the same-model PD references
+  double model_reference_eps = 1e-10;  ///< gradient tolerance of the same-model direct-Newton references
   int model_reference_max_iterations = 20000;
   std::optional<bool> step_relative_gate;  ///< --gate for the PD methods (default: the scene's)
   bool features = false;  ///< also the feature-cost runs (energies, damping, Anderson)

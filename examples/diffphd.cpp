@@ -142,7 +142,7 @@ int main(int argc, char** argv) {
   std::string scene_path, out_dir;
   std::optional<double> contrast, eps_rel;
   std::optional<int> frames, anderson, max_iterations;
-  std::string routing, gate;
+  std::string routing, gate, method;
   bool no_frames = false;
   auto* run = app.add_subcommand("run", "Simulate a scene file (frames, per-step stats, summary)");
   run->add_option("SCENE", scene_path, "Scene file (JSON, see docs/scenes.md)")->required();
@@ -153,15 +153,20 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   run->add_option("--anderson", anderson, "Anderson window m (0 = plain PD, -1 = auto)")
       ->check(CLI::Range(-1, 50));
-  run->add_option("--eps-rel", eps_rel, "Dual-gate relative tolerance")->check(CLI::PositiveNumber);
-  run->add_option("--max-iterations", max_iterations, "PD iterations per step")
+  run->add_option("--eps-rel", eps_rel, "Relative tolerance of the convergence test")->check(CLI::PositiveNumber);
+  run->add_option("--max-iterations", max_iterations,
+                  "Outer iterations per step (PD iterations, Newton or L-BFGS steps)")
       ->check(CLI::PositiveNumber);
   run->add_option("--routing", routing, "stiffness-aware | per-element-prox | uniform")
       ->check(CLI::IsMember({"stiffness-aware", "per-element-prox", "uniform"}));
   run->add_option("--gate", gate,
-                  "Dual-gate scale: paper (eq. 22 as printed) | step-relative (translation "
-                  "invariant)")
-      ->check(CLI::IsMember({"paper", "step-relative"}));
+                  "Convergence test: gradient (default; ||grad Phi|| against the first "
+                  "iterate's) | paper (eq. 22 as printed) | step-relative (pd only)")
+      ->check(CLI::IsMember({"gradient", "paper", "step-relative"}));
+  run->add_option("--method", method,
+                  "Forward method: auto | pd | newton-krylov | lbfgs | newton-direct "
+                  "(docs/solver.md)")
+      ->check(CLI::IsMember({"auto", "pd", "newton-krylov", "lbfgs", "newton-direct"}));
   run->add_flag("--no-frames", no_frames, "Write stats and summary only");
   run->add_flag("--json", json_out, "Print the summary as one JSON object on stdout");
 
@@ -392,6 +397,12 @@ int main(int argc, char** argv) {
       if (routing == "uniform") opt.routing = diffphd::io::Routing::Uniform;
       if (gate == "paper") opt.gate = diffphd::GateScale::Paper;
       if (gate == "step-relative") opt.gate = diffphd::GateScale::StepRelative;
+      if (gate == "gradient") opt.gate = diffphd::GateScale::Gradient;
+      if (!method.empty()) {
+        diffphd::SolverMethod m;
+        diffphd::parse_solver_method(method, m);
+        opt.method = m;
+      }
       return cmd_run(scene_path, contrast, opt, json_out);
     }
   } catch (const diffphd::InputError& e) {

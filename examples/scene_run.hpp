@@ -32,6 +32,7 @@ struct RunOptions {
   std::optional<int> max_iterations;
   std::optional<io::Routing> routing;
   std::optional<GateScale> gate;  ///< --gate
+  std::optional<SolverMethod> method;  ///< --method
   bool write_frames = true;       ///< VTU/PVD and OBJ per frame (stats are always written)
   bool progress = true;           ///< progress bar on a terminal
 };
@@ -64,6 +65,7 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   over.max_iterations = opt.max_iterations;
   over.routing = opt.routing;
   over.gate = opt.gate;
+  over.method = opt.method;
   SceneSimulation<Dim, Energy, Contact> run(scene, over);
   const SimplicialMesh<Dim>& mesh = run.mesh();
   const MaterialField& materials = run.materials();
@@ -82,7 +84,8 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
     csv.open(fs::path(opt.out_dir) / "stats.csv");
     if (!csv) throw InputError("cannot write " + (fs::path(opt.out_dir) / "stats.csv").string());
     csv << "frame,step,time,iterations,primal_ratio,dual_ratio,converged,status,aa_resets,"
-           "seconds,kinetic_energy,min_jacobian,max_displacement";
+           "seconds,kinetic_energy,min_jacobian,max_displacement,method,inner_iterations,"
+           "gradient_ratio,projected_elements";
     if (WithContact)
       csv << ",contact_points,contact_active,contact_sliding,contact_fraction,worst_penetration,"
              "complementarity,cone_violation,w_off_diagonal_ratio,ncp_iterations,ncp_ldlt,ncp_lu,"
@@ -103,7 +106,8 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   };
 
   write_frame(0);
-  long steps = 0, converged_steps = 0, iter_sum = 0;
+  long steps = 0, converged_steps = 0, iter_sum = 0, inner_sum = 0;
+  std::string method_used = to_string(sim.resolve_method());
   int iter_max = 0, converged_frames = 0, aa_resets = 0;
   double seconds = 0, min_j = sim.min_jacobian();
   std::vector<double> step_seconds;
@@ -119,6 +123,8 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
       const StepReport r = run.step();
       ++steps;
       iter_sum += r.iterations;
+      inner_sum += r.inner_iterations;
+      method_used = to_string(r.method);
       iter_max = std::max(iter_max, r.iterations);
       aa_resets += r.aa_resets;
       seconds += r.seconds;
@@ -132,7 +138,9 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
             << r.primal_ratio << ',' << r.dual_ratio << ',' << r.converged << ','
             << to_string(r.status) << ',' << r.aa_resets << ',' << r.seconds << ','
             << sim.kinetic_energy() << ',' << mj << ','
-            << (sim.positions() - mesh.rest_positions()).rowwise().norm().maxCoeff();
+            << (sim.positions() - mesh.rest_positions()).rowwise().norm().maxCoeff() << ','
+            << to_string(r.method) << ',' << r.inner_iterations << ',' << r.gradient_ratio << ','
+            << r.projected_elements;
       if constexpr (WithContact) {
         const auto& c = r.contact;
         const double fraction = double(c.active) / mesh.num_vertices();
@@ -183,6 +191,8 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   j["mean_iterations"] = steps ? double(iter_sum) / steps : 0.0;
   j["max_iterations"] = iter_max;
   j["aa_resets"] = aa_resets;
+  j["method"] = method_used;
+  j["mean_inner_iterations"] = steps ? double(inner_sum) / steps : 0.0;
   j["seconds_per_step"] = steps ? seconds / steps : 0.0;
   j["median_seconds_per_step"] = step_seconds.empty() ? 0.0 : step_seconds[step_seconds.size() / 2];
   j["dofs"] = Dim * mesh.num_vertices();

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Draws the chart of a `diffphd run` from its stats.csv: the largest displacement over time,
-and the PD iterations each step needed (with the steps that did not converge marked)."""
+and the iterations each step needed (local-global or Newton, by the step's method) (with the steps that did not converge marked)."""
 import csv
 import sys
 
@@ -24,7 +24,8 @@ def main(stats_path: str, png_path: str, title: str) -> None:
     ax1.set_ylabel("max |displacement| [m]")
     ax1.set_title(title, fontsize=10)
     ax1.grid(True, alpha=0.3)
-    ax2.plot(t, its, drawstyle="steps-mid", label="PD iterations per step")
+    method = rows[0].get("method", "pd") if rows else "pd"
+    ax2.plot(t, its, drawstyle="steps-mid", label=f"{method} iterations per step")
     if bad:
         ax2.plot(*zip(*bad), "rx", label="did not converge")
     ax2.set_xlabel("time [s]")

@@ -235,6 +235,7 @@ TEST_CASE("scene: bad input names the file and the JSON path", "[scene][errors]"
       {"bad_energy", {"solver.energy: unknown energy \"neo-hooke\""}},
       {"bad_routing", {"solver.routing: unknown routing \"stiffness\""}},
       {"bad_gate", {"solver.gate: unknown gate \"strict\""}},
+      {"bad_method", {"solver.method: unknown method \"newton\"", "\"newton-krylov\""}},
       {"bad_contrast_exponents", {"contrast.exponents: has 1 entries, contrast.regions has 2"}},
       {"bad_mesh_missing", {"mesh.file: mesh file not found: ", "nowhere/missing.node"}},
       {"bad_gravity_size", {"gravity: expected 3 numbers"}},

@@ -36,6 +36,11 @@ Vec<3> center_of_mass(const VertexMatrix<3>& x, const VectorX& m) {
 
 TEST_CASE("scene -> solver options: gate, overrides, contrast exponents", "[scene][solver]") {
   io::SceneSpec s = io::load_scene(kData + "good_small.json");
+  CHECK(scene_solver_options(s, 3).gate_scale == GateScale::Gradient);
+  CHECK(scene_solver_options(s, 3).method == SolverMethod::Auto);
+  s.solver.method = "newton-krylov";
+  CHECK(scene_solver_options(s, 3).method == SolverMethod::NewtonKrylov);
+  s.solver.gate = io::Gate::Paper;
   CHECK(scene_solver_options(s, 3).gate_scale == GateScale::Paper);
   s.solver.gate = io::Gate::StepRelative;
   CHECK(scene_solver_options(s, 3).gate_scale == GateScale::StepRelative);
@@ -43,7 +48,9 @@ TEST_CASE("scene -> solver options: gate, overrides, contrast exponents", "[scen
   over.gate = GateScale::Paper;
   over.anderson = 0;
   over.eps_rel = 1e-7;
+  over.method = SolverMethod::PD;
   const SolverOptions o = scene_solver_options(s, 3, over);
+  CHECK(o.method == SolverMethod::PD);
   CHECK(o.gate_scale == GateScale::Paper);
   CHECK(o.anderson_window == 0);
   CHECK(o.eps_rel == 1e-7);

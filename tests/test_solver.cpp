@@ -1,4 +1,5 @@
-// Tests of include/diffphd/solver/solver.hpp: Anderson against plain PD, the dual gate at k = 0,
+// Tests of include/diffphd/solver/solver.hpp with method "pd" (the local-global iteration; the
+// other methods are tested in test_methods.cpp): Anderson against plain PD, the dual gate at k = 0,
 // the factor reuse, non-finite and max-iteration reporting, drivers, Dirichlet vertices, the
 // damping right-hand side and the inertial target.
 #include <catch2/catch.hpp>
@@ -62,6 +63,7 @@ TEST_CASE("Solver: Anderson (m = 1) needs fewer iterations than plain PD", "[sol
   // steps of 1/60 s (30 degrees), Corotated + Volume, gravity on, eps_rel = 1e-5.
   TwistBar scene(100.0);
   SolverOptions o;
+  o.method = SolverMethod::PD;  // these tests are about the local-global iteration
   o.eps_rel = 1e-5;
   o.max_iterations = 5000;
   auto run = [&](int window) {
@@ -97,6 +99,7 @@ TEST_CASE("Solver: the auto Anderson window follows the contrast", "[solver]") {
   REQUIRE(a.anderson_window() == 1);
   REQUIRE(b.anderson_window() == 5);
   SolverOptions o;
+  o.method = SolverMethod::PD;  // these tests are about the local-global iteration
   o.anderson_window = 3;
   Solver<3, CoroVol> c(het.mesh, het.materials, o);
   REQUIRE(c.anderson_window() == 3);
@@ -107,6 +110,7 @@ TEST_CASE("Solver: the dual gate does not fire at k = 0 on a tiny first step", "
   // far below eps_abs, and a single step-norm test would stop after one solve.
   TwistBar scene(1.0);
   SolverOptions o;
+  o.method = SolverMethod::PD;  // these tests are about the local-global iteration
   o.gravity.setZero();
   Solver<3, CoroVol> sim(scene.mesh, scene.materials, o);
   VertexMatrix<3> f = VertexMatrix<3>::Zero(scene.mesh.num_vertices(), 3);
@@ -175,7 +179,9 @@ TEST_CASE("Solver: a NaN in the local step names the iteration and the element",
   // An infinite driver velocity puts Inf into the prescribed positions; the first local step
   // sees a non-finite F in the elements at the driven end.
   TwistBar scene(10.0);
-  Solver<3, CoroVol> sim(scene.mesh, scene.materials);
+  SolverOptions o;
+  o.method = SolverMethod::PD;
+  Solver<3, CoroVol> sim(scene.mesh, scene.materials, o);
   Driver<3> d;
   d.kind = Driver<3>::Kind::Pull;
   d.vertices = scene.right;
@@ -193,6 +199,7 @@ TEST_CASE("Solver: a NaN in the local step names the iteration and the element",
 TEST_CASE("Solver: MaxIterations is reported on a hard step with max_iterations = 2", "[solver]") {
   TwistBar scene(1000.0);
   SolverOptions o;
+  o.method = SolverMethod::PD;  // these tests are about the local-global iteration
   o.max_iterations = 2;
   o.eps_rel = 1e-8;
   auto sim = twisted<CoroVol>(scene, o, 30.0);  // half a radian in one step
@@ -209,6 +216,7 @@ TEST_CASE("Solver: MaxIterations is reported on a hard step with max_iterations 
 TEST_CASE("Solver: drivers move their vertices exactly as scripted", "[solver]") {
   TwistBar scene(10.0);
   SolverOptions o;
+  o.method = SolverMethod::PD;  // these tests are about the local-global iteration
   o.h = 0.01;
   Solver<3, CoroVol> sim(scene.mesh, scene.materials, o);
   sim.fix_vertices(scene.left);
@@ -237,6 +245,7 @@ TEST_CASE("Solver: drivers move their vertices exactly as scripted", "[solver]")
 TEST_CASE("Solver: Pull, start/stop windows and release_at_stop", "[solver]") {
   TwistBar scene(1.0);
   SolverOptions o;
+  o.method = SolverMethod::PD;  // these tests are about the local-global iteration
   o.h = 0.01;
   Solver<3, CoroVol> sim(scene.mesh, scene.materials, o);
   sim.fix_vertices(scene.left);
@@ -281,6 +290,7 @@ TEST_CASE("Solver: fix_vertices on some axes only", "[solver]") {
 TEST_CASE("Solver: free fall hits the inertial target exactly", "[solver]") {
   TwistBar scene(100.0);
   SolverOptions o;
+  o.method = SolverMethod::PD;  // these tests are about the local-global iteration
   o.h = 0.01;
   Solver<3, CoroVol> sim(scene.mesh, scene.materials, o);
   const VertexMatrix<3> X = scene.mesh.rest_positions();
@@ -306,6 +316,7 @@ TEST_CASE("Solver: damping right-hand side (eq. 2 with v = (q - q_t)/h)", "[solv
   v0.col(1).setConstant(2.0);
   for (double alpha : {0.0, 3.0}) {
     SolverOptions o;
+    o.method = SolverMethod::PD;  // these tests are about the local-global iteration
     o.gravity.setZero();
     o.h = 0.01;
     o.alpha = alpha;
@@ -324,6 +335,7 @@ TEST_CASE("Solver: stiffness damping dissipates a vibration", "[solver]") {
   TwistBar scene(1.0);
   auto run = [&](double beta0) {
     SolverOptions o;
+    o.method = SolverMethod::PD;  // these tests are about the local-global iteration
     o.gravity.setZero();
     o.beta0 = beta0;
     o.eps_rel = 1e-8;
@@ -345,6 +357,7 @@ TEST_CASE("Solver: stiffness damping dissipates a vibration", "[solver]") {
 TEST_CASE("Solver: weight routing", "[solver]") {
   TwistBar scene(100.0);
   SolverOptions o;
+  o.method = SolverMethod::PD;  // these tests are about the local-global iteration
   Solver<3, Energies<Corotated, NeoHookeanProx>> a(scene.mesh, scene.materials, o);
   REQUIRE(a.weights().maxCoeff() / a.weights().minCoeff() == Approx(100.0));
   o.routing = WeightRouting::Uniform;
@@ -400,6 +413,7 @@ TEST_CASE("Solver: the step-relative gate does not depend on where the body is",
     if (near_mesh.rest_positions()(v, 0) < 1e-9) left.push_back(v);
   auto run = [&](const SimplicialMesh<3>& mesh, GateScale scale) {
     SolverOptions o;
+    o.method = SolverMethod::PD;  // these tests are about the local-global iteration
     o.gate_scale = scale;
     o.eps_rel = 1e-4;
     Solver<3, CoroVol> sim(mesh, mats, o);

@@ -109,6 +109,16 @@ struct acts_on_fibre<T, std::void_t<decltype(T::acts_on_fibre)>>
 template <class T>
 inline constexpr bool acts_on_fibre_v = acts_on_fibre<T>::value;
 
+/// Terms with a potential_energy() (stretch proxes: the scaled Moreau envelope).
+template <class T, int Dim, class = void>
+struct has_potential_energy : std::false_type {};
+template <class T, int Dim>
+struct has_potential_energy<
+    T, Dim,
+    std::void_t<decltype(T::template potential_energy<double, Dim>(
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(), std::declval<const ElementParams&>(),
+        std::declval<const ProxMeans&>()))>> : std::true_type {};
+
 /// Terms whose differential can take the trust-region filter (every StretchProxTerm).
 template <class T, int Dim, class = void>
 struct has_differential_filtered_svd : std::false_type {};
@@ -398,6 +408,25 @@ struct Energies {
               out.complete = false;
             }
           }
+        }(),
+        ...);
+    return out;
+  }
+
+  /// Sum of the terms' potential energies (per unit rest volume): the function whose F-gradient
+  /// is sum_k w_k (F - p_k(F)) (fibre terms: k (F m - p) m^T). For projections onto sets it is
+  /// the surrogate w / 2 ||F - p||^2; for stretch proxes the scaled Moreau envelope
+  /// (StretchProxTerm::potential_energy). The PD potential Phi sums it (pd_potential.hpp).
+  template <class S, int Dim>
+  static S potential_energy(const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p,
+                            const ProxMeans& means) {
+    S out(0);
+    (
+        [&] {
+          if constexpr (detail::has_potential_energy<Terms, Dim>::value)
+            out += Terms::template potential_energy<S, Dim>(F, p, means);
+          else
+            out += Terms::template surrogate_energy<S, Dim>(F, p, means);
         }(),
         ...);
     return out;

@@ -70,6 +70,22 @@ struct StretchProxTerm : detail::SvdTerm<StretchProxTerm<Policy, Routing>> {
     return detail::compose<S, Dim>(U, stretches<S, Dim>(sigma, p, means, stats), V);
   }
 
+  /// The energy whose F-gradient is w (F - p*) (w = element_weight, k the prox weight): the
+  /// Moreau envelope of psi scaled by w / k, (w / k) (psi(s*) + k / 2 ||sigma_F - s*||^2). This is
+  /// what the PD potential Phi sums (pd_potential.hpp); surrogate_energy() (w / 2 ||F - p*||^2)
+  /// leaves out psi(s*) and is not the function PD minimises.
+  template <class S, int Dim>
+  static S potential_energy(const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p,
+                            const ProxMeans& means) {
+    Eigen::Matrix<S, Dim, Dim> U, V;
+    Eigen::Matrix<S, Dim, 1> sigma;
+    svd_rv<S, Dim>(F, U, sigma, V);
+    const Eigen::Matrix<S, Dim, 1> s = stretches<S, Dim>(sigma, p, means);
+    const ProxParams q = prox_params(p, means);
+    const auto model = Policy::template model<S, Dim>(q, routed_means(p, means));
+    return S(element_weight(p) / q.k) * (model.value(s) + S(0.5 * q.k) * (sigma - s).squaredNorm());
+  }
+
   /// H_prox(s) = H_psi(s) + k I (eq. 23), Dim x Dim.
   template <class S, int Dim>
   DIFFPHD_HOST_DEVICE static Eigen::Matrix<S, Dim, Dim> prox_hessian(

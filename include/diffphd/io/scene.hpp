@@ -87,13 +87,23 @@ enum class Routing {
   Uniform          ///< "uniform": one weight for all elements (plain PD, the baseline)
 };
 
-/// \brief What the dual gate's tolerances are relative to ("gate" in "solver").
+/// \brief The convergence test of a step ("gate" in "solver").
 enum class Gate {
-  Paper,        ///< "paper": eq. (22) as printed (relative to ||q^k|| and ||b(q^k)||)
+  Gradient,     ///< "gradient" (default): ||grad Phi|| against the first iterate's force imbalance
+  Paper,        ///< "paper": eq. (22) as printed (relative to ||q^k|| and ||b(q^k)||; pd only)
   StepRelative  ///< "step-relative": relative to this step's motion and the elastic part of b
 };
 
-inline const char* to_string(Gate g) { return g == Gate::Paper ? "paper" : "step-relative"; }
+inline const char* to_string(Gate g) {
+  return g == Gate::Gradient ? "gradient" : g == Gate::Paper ? "paper" : "step-relative";
+}
+
+/// The scene-file names of the forward methods ("method" in "solver").
+inline const std::vector<std::string>& method_names() {
+  static const std::vector<std::string> names{"auto", "pd", "newton-krylov", "lbfgs",
+                                              "newton-direct"};
+  return names;
+}
 
 /// The scene-file name of an energy ("corotated+volume", ...).
 inline const char* to_string(EnergyKind e) {
@@ -367,10 +377,11 @@ struct SolverSpec {
   Routing routing = Routing::StiffnessAware;
   int anderson_window = -1;  ///< -1: automatic (m = 1 heterogeneous, 5 homogeneous); 0: off
   double anderson_reset = 10.0;  ///< discard the AA history when |gamma| exceeds this (> 0)
-  double eps_rel = 1e-4;     ///< dual-gate relative tolerance, eq. (22), > 0
-  double eps_abs = 1e-8;     ///< dual-gate absolute tolerance, eq. (22), >= 0
-  Gate gate = Gate::Paper;   ///< what eps_rel is relative to
-  int max_iterations = 200;  ///< PD iterations per step, >= 1
+  double eps_rel = 1e-6;     ///< relative tolerance of the convergence test, > 0
+  double eps_abs = 1e-8;     ///< absolute tolerance of the convergence test, >= 0
+  Gate gate = Gate::Gradient;  ///< the convergence test
+  int max_iterations = 200;  ///< outer iterations per step (PD iterations, Newton steps), >= 1
+  std::string method = "auto";  ///< one of method_names()
   double alpha = 0;          ///< mass damping alpha, 1/s, >= 0 (eq. 31)
   double beta0 = 0;          ///< stiffness damping beta_0, s, >= 0 (Sec. 4.5)
 };
@@ -1532,7 +1543,7 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
     const std::string path = "solver";
     p.expect_object(j, path,
                     {"energy", "routing", "anderson_window", "anderson_reset", "eps_rel",
-                     "eps_abs", "gate", "max_iterations", "damping"});
+                     "eps_abs", "gate", "max_iterations", "damping", "method"});
     SolverSpec& sv = s.solver;
     if (j.contains("energy")) {
       const std::string e = p.string(j.at("energy"), "solver.energy");
@@ -1559,12 +1570,24 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
     }
     if (j.contains("gate")) {
       const std::string g = p.string(j.at("gate"), "solver.gate");
-      if (g == "paper")
+      if (g == "gradient")
+        sv.gate = Gate::Gradient;
+      else if (g == "paper")
         sv.gate = Gate::Paper;
       else if (g == "step-relative")
         sv.gate = Gate::StepRelative;
       else
-        p.fail("solver.gate", "unknown gate \"" + g + "\" (expected \"paper\" or \"step-relative\")");
+        p.fail("solver.gate", "unknown gate \"" + g +
+                                  "\" (expected \"gradient\", \"paper\" or \"step-relative\")");
+    }
+    if (j.contains("method")) {
+      const std::string m = p.string(j.at("method"), "solver.method");
+      const auto& names = method_names();
+      if (std::find(names.begin(), names.end(), m) == names.end())
+        p.fail("solver.method", "unknown method \"" + m +
+                                    "\" (expected \"auto\", \"pd\", \"newton-krylov\", "
+                                    "\"lbfgs\" or \"newton-direct\")");
+      sv.method = m;
     }
     const long m = p.integer(j, path, "anderson_window", -1L);
     if (m < -1 || m > 64)

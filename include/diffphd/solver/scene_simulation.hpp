@@ -73,6 +73,7 @@ struct SceneOverrides {
   std::optional<int> max_iterations;
   std::optional<io::Routing> routing;
   std::optional<GateScale> gate;
+  std::optional<SolverMethod> method;
 };
 
 /// \brief The solver options a scene asks for, with `over` applied.
@@ -88,8 +89,13 @@ inline SolverOptions scene_solver_options(const io::SceneSpec& scene, int dim,
   so.eps_abs = scene.solver.eps_abs;
   so.max_iterations = over.max_iterations.value_or(scene.solver.max_iterations);
   so.routing = to_weight_routing(over.routing.value_or(scene.solver.routing));
-  so.gate_scale = over.gate.value_or(
-      scene.solver.gate == io::Gate::StepRelative ? GateScale::StepRelative : GateScale::Paper);
+  so.gate_scale = over.gate.value_or(scene.solver.gate == io::Gate::StepRelative
+                                         ? GateScale::StepRelative
+                                         : scene.solver.gate == io::Gate::Paper ? GateScale::Paper
+                                                                                : GateScale::Gradient);
+  SolverMethod m = SolverMethod::Auto;
+  parse_solver_method(scene.solver.method, m);  // validated by the parser
+  so.method = over.method.value_or(m);
   so.gravity.setZero();
   for (int k = 0; k < dim && k < scene.gravity.size(); ++k) so.gravity[k] = scene.gravity[k];
   return so;

@@ -33,6 +33,8 @@
 #include "backend.hpp"
 #include "driver.hpp"
 #include "dual_gate.hpp"
+#include "methods.hpp"
+#include "pd_potential.hpp"
 
 namespace diffphd {
 
@@ -75,8 +77,14 @@ enum class InitialGuess {
   Previous,
 };
 
-/// \brief What the dual gate (eq. 22) measures its two increments against.
+/// \brief The convergence test of a step.
 enum class GateScale {
+  /// Default, every method: ||grad Phi(q)|| on the free DoFs (Phi the step's PD potential,
+  /// grad Phi = A q - b(q)) against eps_rel times its value at the step's first iterate, plus
+  /// eps_abs times the body's weight under 9.81 m/s^2 (GradientTest). Independent of where the
+  /// body is and defined at rest; it bounds the distance to the fixed point where the increment
+  /// gates below do not (docs/solver.md, "Convergence test").
+  Gradient,
   /// eq. (22) as printed: ||q^{k+1} - q^k|| against eps_rel ||q^k||, ||db|| against
   /// eps_rel ||b(q^k)||. Both norms are dominated by absolute positions (b holds M/h^2 q~), so
   /// the test depends on where the body is and is loose for small motions far from the origin.
@@ -88,7 +96,7 @@ enum class GateScale {
 };
 
 inline const char* to_string(GateScale g) {
-  return g == GateScale::Paper ? "paper" : "step-relative";
+  return g == GateScale::Gradient ? "gradient" : g == GateScale::Paper ? "paper" : "step-relative";
 }
 
 inline const char* to_string(InitialGuess g) {
@@ -118,12 +126,21 @@ struct SolverOptions {
   /// iteration counts on the tested scenes (docs/solver.md).
   double anderson_tikhonov = 1e-10;
   double anderson_reset = 10.0;  ///< discard the AA history when ||gamma||_2 exceeds this
-  double eps_rel = 1e-4;         ///< dual gate, eq. (22)
-  double eps_abs = 1e-8;         ///< dual gate, eq. (22)
-  int max_iterations = 200;      ///< global solves per step at most
+  /// Relative tolerance of the convergence test (gradient test: against the first iterate's
+  /// force imbalance; increment gates: eq. (22)).
+  double eps_rel = 1e-6;
+  /// Absolute tolerance (gradient test: a fraction of the body's weight under 9.81 m/s^2;
+  /// increment gates: metres and the units of b, eq. (22)).
+  double eps_abs = 1e-8;
+  /// Iterations per step at most: local-global iterations (pd), Newton steps (newton-krylov,
+  /// newton-direct) or L-BFGS steps (lbfgs).
+  int max_iterations = 200;
+  SolverMethod method = SolverMethod::Auto;  ///< iteration of a step (docs/solver.md, "Methods")
+  MethodOptions newton;                     ///< Newton-Krylov, direct Newton and L-BFGS options
   WeightRouting routing = WeightRouting::StiffnessAware;
   InitialGuess initial_guess = InitialGuess::Inertial;  ///< first iterate of a step
-  GateScale gate_scale = GateScale::Paper;              ///< what eq. (22) is relative to
+  GateScale gate_scale = GateScale::Gradient;           ///< convergence test (pd only; the
+                                                        ///< other methods always use Gradient)
   Vec<3> gravity = Vec<3>(0, -9.81, 0);                 ///< m/s^2; the first Dim entries are used
 };
 
@@ -148,7 +165,15 @@ inline const char* to_string(StepStatus s) {
 
 /// \brief What one step did.
 struct StepReport {
-  int iterations = 0;       ///< global solves (local-global iterations) performed
+  int iterations = 0;  ///< outer iterations: local-global iterations, Newton or L-BFGS steps
+  /// Applications of A^-1 beyond one per outer iteration's own: CG iterations (newton-krylov),
+  /// two-loop preconditioner applications (lbfgs), Cholesky solves (newton-direct); 0 for pd.
+  int inner_iterations = 0;
+  SolverMethod method = SolverMethod::PD;  ///< the method the step ran (Auto resolved)
+  /// Last ||grad Phi|| / (eps_rel f0 + eps_abs f_w) of the gradient test (<= 1: converged).
+  double gradient_ratio = 0;
+  /// Elements whose Hessian block was projected on the PSD cone (last Newton step).
+  int projected_elements = 0;
   double primal_ratio = 0;  ///< last ||dq|| / (eps_rel ||q|| + eps_abs) of eq. (22)
   double dual_ratio = 0;    ///< last ||db|| / (eps_rel ||b|| + eps_abs) of eq. (22)
   bool converged = false;   ///< status == Converged
@@ -206,6 +231,8 @@ class Solver {
  public:
   using EnergyPack = typename detail::as_energies<Energy>::type;
   using Vector = typename Backend::Vector;
+  using backend_type = Backend;
+  static constexpr int kDim = Dim;
   using FixedMask = typename PDSystem<Dim>::FixedMask;
   static constexpr bool kHasFibreTerms = EnergyPack::has_fibre_terms;
   static constexpr bool kHasContact = !std::is_same<Contact, NoContact>::value;
@@ -327,158 +354,25 @@ class Solver {
     StepReport rep;
     prepare_system();
     const double h = options_.h, t1 = t_ + h;
-    const Index n = nv_ * Dim;
-    build_dirichlet_values(t1);  // xfix_ at t + h
-
-    // Flat copies of the state (row-major #V by Dim).
-    const Vector q_t = flat(positions_);
-    const Vector v_t = flat(velocities_);
-    // Inertial target, eq. (3): q~ = q_t + h v_t + h^2 M^-1 (f_ext + M g).
-    Vector qtil(n);
-    for (Index v = 0; v < nv_; ++v)
-      for (int k = 0; k < Dim; ++k) {
-        const Index i = Dim * v + k;
-        qtil[i] = q_t[i] + h * v_t[i] + h * h * (f_ext_(v, k) / mass_[v] + options_.gravity[k]);
-      }
+    Vector q_t, qtil, rhs0;
     Index bad = -1;
-    if (!Backend::all_finite(qtil, &bad))
+    if (!setup_step(q_t, qtil, rhs0, &bad))
       return fail(rep, t_start,
                   "iteration 0: non-finite inertial target q~ at vertex " +
                       std::to_string(bad / Dim) + " (external force, velocity or position)");
-    // Constant part of b: (M/h^2) q~ + (alpha/h) M q_t + (1/h) B_beta q_t (docs/solver.md).
-    Vector rhs0(n);
-    for (Index v = 0; v < nv_; ++v)
-      for (int k = 0; k < Dim; ++k) {
-        const Index i = Dim * v + k;
-        rhs0[i] = mass_[v] / (h * h) * qtil[i] + options_.alpha / h * mass_[v] * q_t[i];
-      }
-    if (options_.beta0 > 0) {
-      Vector bq(n);
-      scatter(q_t, bq, [&](Index e, const Mat<Dim>& F) -> Mat<Dim> { return beta_[e] * F; });
-      Backend::axpy(1.0 / h, bq, rhs0);
-    }
+    const Vector v_t = flat(velocities_);
 
-    // Iteration (Algorithm 1, lines 11-32).
+    // First iterate: the constant-velocity prediction (or q_t), Dirichlet values imposed.
     Vector q = q_t;
     if (options_.initial_guess == InitialGuess::Inertial) Backend::axpy(h, v_t, q);
-    Vector q_prev, b(n), b_prev, qhat, qnext;
     impose(q);
-    if constexpr (kHasContact) {
-      // Contacts of the step (Algorithm 1 lines 8-10): detected between q_t and the inertial
-      // prediction, frames frozen; W and the columns A^-1 j_r on the current factor.
-      contact_active_ = contact_.enabled();
-      if (contact_active_) {
-        fully_fixed_.assign(nv_, 0);
-        for (Index v = 0; v < nv_; ++v) fully_fixed_[v] = mask_.row(v).all() ? 1 : 0;
-        VertexMatrix<Dim> qpred(nv_, Dim);
-        Eigen::Map<Vector>(qpred.data(), n) = qtil;
-        for (Index v = 0; v < nv_; ++v)
-          if (mask_.row(v).any())
-            for (int k = 0; k < Dim; ++k)
-              if (mask_(v, k)) qpred(v, k) = xfix_[Dim * v + k];
-        contact_.begin_step(mesh_, system_, fully_fixed_, positions_, qpred, t_, t1);
-      }
-    }
-    int total_iterations = 0;
-    for (int pass = 0;; ++pass) {
-    mixer_ = AndersonMixer<Backend>(window_, options_.anderson_tikhonov, options_.anderson_reset);
-    DualGate gate(options_.eps_rel, options_.eps_abs);
-    q_prev.resize(0);
-    for (int i = 0;; ++i) {
-      // Local step at q^i and b(q^i), eq. (11).
-      Index bad_element = -1;
-      if (!local_step(q, b, &bad_element)) {
-        std::ostringstream os;
-        os << "iteration " << i << ": non-finite local projection at element " << bad_element;
-        return fail(rep, t_start, os.str(), mixer_.resets());
-      }
-      Backend::axpy(1.0, rhs0, b);
-      if (i >= 1) {
-        // Dual gate, eq. (22), for the increment q^i - q^{i-1} (paper's k = i - 1).
-        const bool paper = options_.gate_scale == GateScale::Paper;
-        const bool fire =
-            gate.test(i - 1, Backend::distance(q, q_prev),
-                      paper ? Backend::norm(q_prev) : Backend::distance(q_prev, q_t),
-                      Backend::distance(b, b_prev),
-                      paper ? Backend::norm(b_prev) : Backend::distance(b_prev, rhs0));
-        rep.primal_ratio = gate.primal_ratio();
-        rep.dual_ratio = gate.dual_ratio();
-        if (fire) {
-          rep.status = StepStatus::Converged;
-          rep.converged = true;
-          break;
-        }
-      }
-      if (total_iterations + i >= options_.max_iterations) {
-        rep.status = StepStatus::MaxIterations;
-        std::ostringstream os;
-        os << "not converged after " << i << " iterations (primal ratio " << rep.primal_ratio
-           << ", dual ratio " << rep.dual_ratio << ")";
-        rep.message = os.str();
-        break;
-      }
-      // Global step.
-      Backend::template apply_inverse<Dim>(system_, b, xfix_, qhat);
-      if (!Backend::all_finite(qhat, &bad)) {
-        std::ostringstream os;
-        os << "iteration " << i << ": non-finite global solve at vertex " << bad / Dim;
-        return fail(rep, t_start, os.str(), mixer_.resets());
-      }
-      // Contact (Algorithm 1 lines 15-19): q^ = A^-1 b + sum_r a_r lambda_r.
-      if constexpr (kHasContact)
-        if (contact_active_) {
-          contact_.project(qhat);
-          if (!Backend::all_finite(qhat, &bad)) {
-            std::ostringstream os;
-            os << "iteration " << i << ": non-finite contact solve at vertex " << bad / Dim;
-            return fail(rep, t_start, os.str(), mixer_.resets());
-          }
-        }
-      // Anderson, eqs. (18)-(21), then Dirichlet.
-      mixer_.mix(q, qhat, qnext);
-      impose(qnext);
-      if (!Backend::all_finite(qnext, &bad)) {
-        std::ostringstream os;
-        os << "iteration " << i << ": non-finite Anderson iterate at vertex " << bad / Dim;
-        return fail(rep, t_start, os.str(), mixer_.resets());
-      }
-      std::swap(q_prev, q);
-      std::swap(q, qnext);
-      std::swap(b_prev, b);
-      if (b.size() != n) b.resize(n);
-      rep.iterations = total_iterations + i + 1;
-    }
-    total_iterations = rep.iterations;
-    rep.aa_resets += mixer_.resets();
-    if constexpr (kHasContact) {
-      if (contact_active_) {
-        // A converged step with contact rows ends on T(q) = global + contact solve from the
-        // converged iterate (b is b(q): the local step of the gate's iteration), not on the
-        // Anderson extrapolation itself: the accepted state then satisfies the contact
-        // conditions to the NCP tolerance (the extrapolation alone left 1e-5 m of
-        // complementarity on one napkin step). One global solve and one NCP solve per step.
-        if (rep.status == StepStatus::Converged && contact_.active()) {
-          Backend::template apply_inverse<Dim>(system_, b, xfix_, qhat);
-          contact_.project(qhat);
-          impose(qhat);
-          if (Backend::all_finite(qhat, &bad)) std::swap(q, qhat);
-        }
-        VertexMatrix<Dim> qm(nv_, Dim);
-        Eigen::Map<Vector>(qm.data(), n) = q;
-        const auto pen = contact_.finish_step(q, qm);
-        // A contact missed by the detection at the start of the step: add it and iterate again
-        // from the converged state (the step's other contacts keep their warm starts).
-        if (rep.status == StepStatus::Converged &&
-            pen.depth > contact_.options.penetration_tolerance &&
-            pass < contact_.options.max_redetections && contact_.redetect(qm) > 0) {
-          rep.status = StepStatus::MaxIterations;
-          rep.converged = false;
-          continue;
-        }
-        rep.contact = contact_.stats();
-      }
-    }
-    break;
+    PdPotential<Solver> potential(*this, q_t, qtil, rhs0, xfix_);
+    rep.method = resolve_method();
+    Vector q_prev;
+    if (rep.method == SolverMethod::PD) {
+      if (!iterate_pd(potential, q, q_t, qtil, rep, q_prev, t_start)) return rep;
+    } else {
+      if (!iterate_minimiser(potential, q, rep, q_prev, t_start)) return rep;
     }
     // Commit: v_{t+h} = (q_{t+h} - q_t) / h.
     for (Index v = 0; v < nv_; ++v)
@@ -583,6 +477,44 @@ class Solver {
   /// min_e det F_e at the current positions (<= 0: some element is inverted or flat).
   double min_jacobian() const { return mesh_.min_jacobian(positions_); }
 
+  /// b_elastic(q) = sum_e V_e G_e^T vec(sum_k w_k p_k(F_e)) (the local step, eq. 11, without
+  /// the constant part). Returns false and the first bad element when a projection is not
+  /// finite. PdPotential's gradient is A q - b_elastic(q) - rhs0.
+  bool local_rhs(const Vector& q, Vector& b, Index* bad_element = nullptr) {
+    Index dummy = -1;
+    return local_step(q, b, bad_element ? bad_element : &dummy);
+  }
+
+  /// The PD potential Phi of the coming step (from the current state, time and forces), with
+  /// the system prepared for it: what step() minimises. For tests and for callers that want to
+  /// evaluate Phi, its gradient or its Hessian themselves.
+  PdPotential<Solver> step_potential() {
+    prepare_system();
+    Vector q_t, qtil, rhs0;
+    setup_step(q_t, qtil, rhs0);
+    return PdPotential<Solver>(*this, q_t, qtil, rhs0, xfix_);
+  }
+
+  /// The vertex sets whose rigid modes Newton-Krylov deflates (each body, each stiff region).
+  const std::vector<std::vector<Index>>& deflation_regions() {
+    if (!regions_valid_) {
+      regions_ = diffphd::deflation_regions<Dim>(mesh_, materials_.mu(),
+                                                  options_.newton.stiff_ratio);
+      regions_valid_ = true;
+    }
+    return regions_;
+  }
+
+  /// The method a step runs under the current options (SolverMethod::Auto resolved by the
+  /// rule of docs/solver.md: pd when contact is enabled, newton-krylov otherwise).
+  SolverMethod resolve_method() const {
+    if (options_.method != SolverMethod::Auto) return options_.method;
+    if constexpr (kHasContact) {
+      if (contact_.enabled()) return SolverMethod::PD;
+    }
+    return SolverMethod::NewtonKrylov;
+  }
+
  private:
   static Vector flat(const VertexMatrix<Dim>& x) {
     return Eigen::Map<const Vector>(x.data(), x.size());
@@ -610,6 +542,244 @@ class Solver {
     return rep;
   }
 
+  /// The paper's local-global iteration with Anderson (Algorithm 1 lines 11-32) and contact,
+  /// from the first iterate q. Returns false (rep filled by fail()) on a non-finite value.
+  bool iterate_pd(PdPotential<Solver>& potential, Vector& q, const Vector& q_t,
+                  const Vector& qtil, StepReport& rep, Vector& q_prev,
+                  std::chrono::steady_clock::time_point t_start) {
+    const Index n = nv_ * Dim;
+    const double t1 = t_ + options_.h;
+    const Vector& rhs0 = potential.rhs0();
+    Vector b(n), b_prev, qhat, qnext, grad;
+    Index bad = -1;
+    GradientTest test = gradient_test();
+    const bool gradient_gate = options_.gate_scale == GateScale::Gradient;
+    if constexpr (kHasContact) {
+      // Contacts of the step (Algorithm 1 lines 8-10): detected between q_t and the inertial
+      // prediction, frames frozen; W and the columns A^-1 j_r on the current factor.
+      contact_active_ = contact_.enabled();
+      if (contact_active_) {
+        fully_fixed_.assign(nv_, 0);
+        for (Index v = 0; v < nv_; ++v) fully_fixed_[v] = mask_.row(v).all() ? 1 : 0;
+        VertexMatrix<Dim> qpred(nv_, Dim);
+        Eigen::Map<Vector>(qpred.data(), n) = qtil;
+        for (Index v = 0; v < nv_; ++v)
+          if (mask_.row(v).any())
+            for (int k = 0; k < Dim; ++k)
+              if (mask_(v, k)) qpred(v, k) = xfix_[Dim * v + k];
+        contact_.begin_step(mesh_, system_, fully_fixed_, positions_, qpred, t_, t1);
+      }
+    }
+    int total_iterations = 0;
+    for (int pass = 0;; ++pass) {
+    mixer_ = AndersonMixer<Backend>(window_, options_.anderson_tikhonov, options_.anderson_reset);
+    DualGate gate(options_.eps_rel, options_.eps_abs);
+    q_prev.resize(0);
+    for (int i = 0;; ++i) {
+      // Local step at q^i and b(q^i), eq. (11).
+      Index bad_element = -1;
+      if (!local_step(q, b, &bad_element)) {
+        std::ostringstream os;
+        os << "iteration " << i << ": non-finite local projection at element " << bad_element;
+        { fail(rep, t_start, os.str(), mixer_.resets()); return false; }
+      }
+      Backend::axpy(1.0, rhs0, b);
+      if (i >= 1 && !gradient_gate) {
+        // Dual gate, eq. (22), for the increment q^i - q^{i-1} (paper's k = i - 1).
+        const bool paper = options_.gate_scale == GateScale::Paper;
+        const bool fire =
+            gate.test(i - 1, Backend::distance(q, q_prev),
+                      paper ? Backend::norm(q_prev) : Backend::distance(q_prev, q_t),
+                      Backend::distance(b, b_prev),
+                      paper ? Backend::norm(b_prev) : Backend::distance(b_prev, rhs0));
+        rep.primal_ratio = gate.primal_ratio();
+        rep.dual_ratio = gate.dual_ratio();
+        if (fire) {
+          rep.status = StepStatus::Converged;
+          rep.converged = true;
+          break;
+        }
+      }
+      if (total_iterations + i >= options_.max_iterations) {
+        rep.status = StepStatus::MaxIterations;
+        std::ostringstream os;
+        os << "not converged after " << i << " iterations (";
+        if (gradient_gate)
+          os << "gradient ratio " << rep.gradient_ratio << ")";
+        else
+          os << "primal ratio " << rep.primal_ratio << ", dual ratio " << rep.dual_ratio << ")";
+        rep.message = os.str();
+        break;
+      }
+      // Global step.
+      Backend::template apply_inverse<Dim>(system_, b, xfix_, qhat);
+      if (!Backend::all_finite(qhat, &bad)) {
+        std::ostringstream os;
+        os << "iteration " << i << ": non-finite global solve at vertex " << bad / Dim;
+        { fail(rep, t_start, os.str(), mixer_.resets()); return false; }
+      }
+      // Contact (Algorithm 1 lines 15-19): q^ = A^-1 b + sum_r a_r lambda_r.
+      if constexpr (kHasContact)
+        if (contact_active_) {
+          contact_.project(qhat);
+          if (!Backend::all_finite(qhat, &bad)) {
+            std::ostringstream os;
+            os << "iteration " << i << ": non-finite contact solve at vertex " << bad / Dim;
+            fail(rep, t_start, os.str(), mixer_.resets());
+            return false;
+          }
+        }
+      // Gradient test at q^i: A (q^i - T(q^i)) = A q^i - b(q^i) - J^T lambda, the gradient of
+      // Phi (with the contact forces of the step's NCP when contact is active).
+      if (gradient_gate) {
+        potential.apply_A(q - qhat, grad);
+        potential.mask(grad);
+        const double gn = Backend::norm(grad);
+        if (i == 0 && pass == 0) test.f0 = gn;
+        rep.gradient_ratio = test.ratio(gn);
+        if (test.passed(gn)) {
+          rep.status = StepStatus::Converged;
+          rep.converged = true;
+          rep.iterations = total_iterations + i + 1;
+          if (q_prev.size() == 0) q_prev = q;
+          break;
+        }
+      }
+      // Anderson, eqs. (18)-(21), then Dirichlet.
+      mixer_.mix(q, qhat, qnext);
+      impose(qnext);
+      if (!Backend::all_finite(qnext, &bad)) {
+        std::ostringstream os;
+        os << "iteration " << i << ": non-finite Anderson iterate at vertex " << bad / Dim;
+        { fail(rep, t_start, os.str(), mixer_.resets()); return false; }
+      }
+      std::swap(q_prev, q);
+      std::swap(q, qnext);
+      std::swap(b_prev, b);
+      if (b.size() != n) b.resize(n);
+      rep.iterations = total_iterations + i + 1;
+    }
+    total_iterations = rep.iterations;
+    rep.aa_resets += mixer_.resets();
+    if constexpr (kHasContact) {
+      if (contact_active_) {
+        // A converged step with contact rows ends on T(q) = global + contact solve from the
+        // converged iterate (b is b(q): the local step of the gate's iteration), not on the
+        // Anderson extrapolation itself: the accepted state then satisfies the contact
+        // conditions to the NCP tolerance (the extrapolation alone left 1e-5 m of
+        // complementarity on one napkin step). One global solve and one NCP solve per step.
+        if (rep.status == StepStatus::Converged && contact_.active()) {
+          Backend::template apply_inverse<Dim>(system_, b, xfix_, qhat);
+          contact_.project(qhat);
+          impose(qhat);
+          if (Backend::all_finite(qhat, &bad)) std::swap(q, qhat);
+        }
+        VertexMatrix<Dim> qm(nv_, Dim);
+        Eigen::Map<Vector>(qm.data(), n) = q;
+        const auto pen = contact_.finish_step(q, qm);
+        // A contact missed by the detection at the start of the step: add it and iterate again
+        // from the converged state (the step's other contacts keep their warm starts).
+        if (rep.status == StepStatus::Converged &&
+            pen.depth > contact_.options.penetration_tolerance &&
+            pass < contact_.options.max_redetections && contact_.redetect(qm) > 0) {
+          rep.status = StepStatus::MaxIterations;
+          rep.converged = false;
+          continue;
+        }
+        rep.contact = contact_.stats();
+      }
+    }
+    break;
+    }
+    return true;
+  }
+
+  /// The step's set-up: Dirichlet values at t + h (xfix_), q_t, the inertial target q~ of
+  /// eq. (3) and the constant part of b, rhs0 = (M/h^2) q~ + (alpha/h) M q_t + (1/h) B_beta q_t.
+  /// Returns false when q~ is not finite (`bad` its first index).
+  bool setup_step(Vector& q_t, Vector& qtil, Vector& rhs0, Index* bad = nullptr) {
+    const double h = options_.h;
+    const Index n = nv_ * Dim;
+    build_dirichlet_values(t_ + h);
+    q_t = flat(positions_);
+    const Vector v_t = flat(velocities_);
+    qtil.resize(n);
+    for (Index v = 0; v < nv_; ++v)
+      for (int k = 0; k < Dim; ++k) {
+        const Index i = Dim * v + k;
+        qtil[i] = q_t[i] + h * v_t[i] + h * h * (f_ext_(v, k) / mass_[v] + options_.gravity[k]);
+      }
+    Index first = -1;
+    if (!Backend::all_finite(qtil, &first)) {
+      if (bad) *bad = first;
+      return false;
+    }
+    rhs0.resize(n);
+    for (Index v = 0; v < nv_; ++v)
+      for (int k = 0; k < Dim; ++k) {
+        const Index i = Dim * v + k;
+        rhs0[i] = mass_[v] / (h * h) * qtil[i] + options_.alpha / h * mass_[v] * q_t[i];
+      }
+    if (options_.beta0 > 0) {
+      Vector bq(n);
+      scatter(q_t, bq, [&](Index e, const Mat<Dim>& F) -> Mat<Dim> { return beta_[e] * F; });
+      Backend::axpy(1.0 / h, bq, rhs0);
+    }
+    return true;
+  }
+
+  /// The gradient test of a step (f0 set by the method from its first iterate).
+  GradientTest gradient_test() const {
+    GradientTest t;
+    t.eps_rel = options_.eps_rel;
+    t.eps_abs = options_.eps_abs;
+    t.floor = options_.eps_abs * weight_norm_ + rounding_force_;
+    return t;
+  }
+
+  /// Newton-Krylov, L-BFGS or direct Newton on Phi from the first iterate q (no contact).
+  bool iterate_minimiser(PdPotential<Solver>& potential, Vector& q, StepReport& rep,
+                         Vector& q_prev, std::chrono::steady_clock::time_point t_start) {
+    if constexpr (kHasContact) {
+      if (contact_.enabled()) {
+        contact_active_ = false;
+        throw InputError(std::string("solver.method \"") + to_string(rep.method) +
+                         "\" does not carry contact; use \"pd\" or \"auto\" with contact");
+      }
+    }
+    GradientTest test = gradient_test();
+    MethodResult r;
+    const Vector q0 = q;
+    switch (rep.method) {
+      case SolverMethod::NewtonKrylov:
+        r = newton_krylov(potential, q, test, deflation_regions(), options_.newton,
+                          options_.max_iterations);
+        break;
+      case SolverMethod::LBFGS:
+        r = lbfgs(potential, q, test, options_.newton, options_.max_iterations);
+        break;
+      default:
+        r = newton_direct(potential, q, test, options_.newton, options_.max_iterations);
+        break;
+    }
+    rep.iterations = r.iterations;
+    rep.inner_iterations = r.inner_iterations;
+    rep.gradient_ratio = r.gradient_ratio;
+    rep.projected_elements = r.projected_elements;
+    Index bad = -1;
+    if (r.non_finite || !Backend::all_finite(q, &bad)) {
+      fail(rep, t_start, r.non_finite ? r.message : "non-finite iterate at vertex " +
+                                                        std::to_string(bad / Dim));
+      return false;
+    }
+    rep.converged = r.converged;
+    rep.status = r.converged ? StepStatus::Converged : StepStatus::MaxIterations;
+    rep.message = r.message;
+    q_prev = q;
+    (void)q0;
+    return true;
+  }
+
   /// Vertex -> (element, local node) incidence, CSR, for a race-free parallel scatter.
   void build_adjacency() {
     const auto& T = mesh_.elements();
@@ -632,6 +802,8 @@ class Solver {
   /// Per-element parameters, means, weights, damping and mass from materials and options.
   void refresh_materials() {
     mass_ = mesh_.lumped_mass(materials_.densities());
+    weight_norm_ = 9.81 * mass_.norm();
+    regions_valid_ = false;
     const VectorX mu = materials_.mu(), lambda = materials_.lambda();
     const VectorX& V = mesh_.rest_volumes();
     const double vol = V.sum();
@@ -654,6 +826,13 @@ class Solver {
       w_[e] = EnergyPack::element_weight(p);
     }
     beta_ = stiffness_damping(materials_, options_.beta0);
+    double r2 = 0;
+    for (Index e = 0; e < ne_; ++e) {
+      const double f = (w_[e] + EnergyPack::fibre_weight(params_[e])) * V[e] *
+                       mesh_.shape_gradients(e).norm() * std::sqrt(double(Dim));
+      r2 += f * f;
+    }
+    rounding_force_ = 8 * std::numeric_limits<double>::epsilon() * std::sqrt(r2);
     const int m = options_.anderson_window;
     window_ = m >= 0 ? m : (materials_.stiffness_contrast() > 1.0 ? 1 : 5);
   }
@@ -789,6 +968,12 @@ class Solver {
   std::conditional_t<kHasContact, Contact, Empty> contact_;
   bool contact_active_ = false;
   std::vector<char> fully_fixed_;
+  std::vector<std::vector<Index>> regions_;
+  bool regions_valid_ = false;
+  double weight_norm_ = 0;  ///< 9.81 m/s^2 ||m||: the gradient test's absolute force scale
+  /// Round-off of grad Phi: 8 eps_mach ||(w_e V_e ||G_e||_F sqrt(Dim))_e||, the size of the
+  /// element forces that cancel in A q - b(q) (at 1e6x contrast it exceeds 1e-12 f0).
+  double rounding_force_ = 0;
 };
 
 }  // namespace diffphd

@@ -1,0 +1,541 @@
+#pragma once
+/// \file methods.hpp
+/// \brief The iteration methods of a forward step that minimise the PD potential Phi
+/// (pd_potential.hpp) directly: Newton-Krylov (deflated PCG preconditioned by the persistent
+/// factor A^-1), L-BFGS with A^-1 as initial inverse Hessian (Liu, Bouaziz and Kavan 2017; the
+/// forward method of DiffPD), and direct Newton (sparse Cholesky of the projected Hessian: the
+/// same-model reference). The local-global iteration with Anderson lives in solver.hpp. All of
+/// them stop on the same test: ||grad Phi|| on the free DoFs against the force scale of the
+/// step's first iterate (GradientTest). docs/solver.md, "Methods".
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <limits>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <Eigen/Dense>
+#include <Eigen/SparseCholesky>
+
+#include "../core/mesh.hpp"
+#include "../core/types.hpp"
+#include "../linalg/sparse_factor.hpp"
+#include "pd_potential.hpp"
+
+namespace diffphd {
+
+/// \brief Which iteration a forward step runs (SolverOptions::method, scene key solver.method).
+enum class SolverMethod {
+  Auto,          ///< chosen per step by the rule of docs/solver.md ("Method selection")
+  PD,            ///< the paper's local-global iteration with Anderson acceleration
+  NewtonKrylov,  ///< Newton on Phi, deflated PCG with A^-1 (no refactorization)
+  LBFGS,         ///< L-BFGS on Phi with A^-1 as initial inverse Hessian, Armijo line search
+  NewtonDirect,  ///< Newton on Phi with a sparse Cholesky of the projected Hessian (reference)
+};
+
+inline const char* to_string(SolverMethod m) {
+  switch (m) {
+    case SolverMethod::Auto:
+      return "auto";
+    case SolverMethod::PD:
+      return "pd";
+    case SolverMethod::NewtonKrylov:
+      return "newton-krylov";
+    case SolverMethod::LBFGS:
+      return "lbfgs";
+    case SolverMethod::NewtonDirect:
+      return "newton-direct";
+  }
+  return "?";
+}
+
+/// Parses "auto", "pd", "newton-krylov", "lbfgs", "newton-direct"; false for anything else.
+inline bool parse_solver_method(const std::string& s, SolverMethod& out) {
+  for (SolverMethod m : {SolverMethod::Auto, SolverMethod::PD, SolverMethod::NewtonKrylov,
+                         SolverMethod::LBFGS, SolverMethod::NewtonDirect})
+    if (s == to_string(m)) {
+      out = m;
+      return true;
+    }
+  return false;
+}
+
+/// \brief The convergence test every method shares: converged when
+/// ||grad Phi(q)||_free <= eps_rel f0 + eps_abs f_w, with f0 = ||grad Phi(q^0)||_free the force
+/// imbalance of the step's first iterate (inertial plus elastic forces, independent of where
+/// the body is) and f_w = 9.81 m/s^2 ||m|| the norm of the body's weight under standard
+/// gravity (an absolute floor that keeps the test defined for a body at rest: f0 = 0 there
+/// and the first iterate is the answer).
+struct GradientTest {
+  double eps_rel = 1e-6, eps_abs = 1e-8;
+  double f0 = 0, floor = 0;
+  double target() const { return eps_rel * f0 + floor; }
+  double ratio(double g) const {
+    const double t = target();
+    return t > 0 ? g / t : (g > 0 ? std::numeric_limits<double>::infinity() : 0.0);
+  }
+  bool passed(double g) const { return g <= target(); }
+};
+
+/// \brief What a method did in one step.
+struct MethodResult {
+  int iterations = 0;        ///< outer iterations (Newton steps, L-BFGS steps)
+  int inner_iterations = 0;  ///< linear solves with A (CG iterations, L-BFGS preconditioner)
+  int projected_elements = 0;  ///< Hessian blocks projected on the PSD cone (last Newton step)
+  double gradient_ratio = 0;   ///< last ||g|| / target
+  bool converged = false;
+  bool non_finite = false;
+  std::string message;
+};
+
+/// \brief Options of the Newton methods and L-BFGS (SolverOptions holds one).
+struct MethodOptions {
+  int max_cg_iterations = 500;  ///< per Newton step
+  double forcing_max = 0.5;     ///< inexact-Newton forcing term eta <= forcing_max
+  /// A stiff region: a connected set of elements whose mu is at least this times the smallest
+  /// mu of the mesh. Its rigid modes join the deflation space.
+  double stiff_ratio = 10.0;
+  bool deflation = true;   ///< coarse correction on rigid modes of stiff regions and bodies
+  int lbfgs_history = 10;  ///< L-BFGS memory
+  int max_line_search = 30;
+};
+
+/// \brief Vertex sets whose rigid modes are deflated: every connected component of the mesh
+/// (each free body) and every connected set of elements with mu_e >= ratio min mu (each stiff
+/// region) that is not a whole body. Connectivity through shared vertices.
+template <int Dim>
+std::vector<std::vector<Index>> deflation_regions(const SimplicialMesh<Dim>& mesh,
+                                                  const VectorX& mu, double ratio) {
+  const Index nv = mesh.num_vertices(), ne = mesh.num_elements();
+  const auto& T = mesh.elements();
+  std::vector<std::vector<Index>> out;
+  auto components = [&](const std::vector<char>& use) {
+    // Union-find over vertices of the used elements.
+    std::vector<Index> parent(nv);
+    for (Index v = 0; v < nv; ++v) parent[v] = v;
+    auto find = [&](Index v) {
+      while (parent[v] != v) v = parent[v] = parent[parent[v]];
+      return v;
+    };
+    std::vector<char> touched(nv, 0);
+    for (Index e = 0; e < ne; ++e) {
+      if (!use[e]) continue;
+      for (int a = 0; a <= Dim; ++a) {
+        touched[T(e, a)] = 1;
+        const Index r0 = find(T(e, 0)), ra = find(T(e, a));
+        if (r0 != ra) parent[ra] = r0;
+      }
+    }
+    std::vector<Index> id(nv, -1);
+    std::vector<std::vector<Index>> comps;
+    for (Index v = 0; v < nv; ++v) {
+      if (!touched[v]) continue;
+      const Index r = find(v);
+      if (id[r] < 0) {
+        id[r] = static_cast<Index>(comps.size());
+        comps.emplace_back();
+      }
+      comps[id[r]].push_back(v);
+    }
+    return comps;
+  };
+  std::vector<char> all(ne, 1);
+  auto bodies = components(all);
+  if (ne > 0 && mu.size() == ne) {
+    const double lo = mu.minCoeff();
+    std::vector<char> stiff(ne, 0);
+    bool any = false;
+    for (Index e = 0; e < ne; ++e)
+      if (mu[e] >= ratio * lo) stiff[e] = 1, any = true;
+    if (any) {
+      std::vector<size_t> body_size;
+      for (auto& b : bodies) body_size.push_back(b.size());
+      for (auto& c : components(stiff)) {
+        bool whole = false;
+        for (size_t s : body_size) whole = whole || s == c.size();
+        // A stiff component as large as a body is that body (already in the list).
+        if (!whole && c.size() > static_cast<size_t>(Dim)) out.push_back(std::move(c));
+      }
+    }
+  }
+  for (auto& b : bodies) out.push_back(std::move(b));
+  return out;
+}
+
+/// \brief Deflation basis Z (orthonormal columns, zero on Dirichlet DoFs): the rigid modes
+/// (Dim translations, Dim (Dim - 1) / 2 rotations about the centroid at q) of each region.
+template <class Potential>
+MatrixX deflation_basis(const Potential& P, const std::vector<std::vector<Index>>& regions,
+                        const VectorX& q) {
+  constexpr int Dim = Potential::Dim;
+  constexpr int nm = Dim == 3 ? 6 : 3;
+  const Index n = P.size();
+  MatrixX Z = MatrixX::Zero(n, static_cast<Index>(regions.size()) * nm);
+  Index col = 0;
+  for (const auto& r : regions) {
+    Vec<Dim> c = Vec<Dim>::Zero();
+    for (Index v : r) c += Eigen::Map<const Vec<Dim>>(q.data() + Dim * v);
+    c /= static_cast<double>(r.size());
+    for (Index v : r) {
+      const Vec<Dim> x = Eigen::Map<const Vec<Dim>>(q.data() + Dim * v) - c;
+      for (int k = 0; k < Dim; ++k) Z(Dim * v + k, col + k) = 1.0;
+      if constexpr (Dim == 2) {
+        Z(2 * v, col + 2) = -x[1];
+        Z(2 * v + 1, col + 2) = x[0];
+      } else {
+        // omega x x for omega = e_0, e_1, e_2.
+        Z(3 * v + 1, col + 3) = -x[2], Z(3 * v + 2, col + 3) = x[1];
+        Z(3 * v + 0, col + 4) = x[2], Z(3 * v + 2, col + 4) = -x[0];
+        Z(3 * v + 0, col + 5) = -x[1], Z(3 * v + 1, col + 5) = x[0];
+      }
+    }
+    col += nm;
+  }
+  for (Index j = 0; j < Z.cols(); ++j) {
+    VectorX zj = Z.col(j);
+    P.mask(zj);
+    Z.col(j) = zj;
+  }
+  // Orthonormalise, dropping dependent columns (fixed regions, a region inside another's span).
+  Eigen::ColPivHouseholderQR<MatrixX> qr(Z);
+  qr.setThreshold(1e-10);
+  const Index rank = qr.rank();
+  if (rank == 0) return MatrixX(n, 0);
+  MatrixX Q = qr.householderQ() * MatrixX::Identity(n, rank);
+  return Q;
+}
+
+/// \brief Deflated preconditioned CG (Saad, Yeung, Erhel and Guyomarc'h 2000): solves H x = b on
+/// the free DoFs with the preconditioner A^-1, the coarse space Z solved exactly (x0 =
+/// Z E^-1 Z^T b, search directions H-orthogonal to Z). Stops when ||b - H x|| <= tol ||b||.
+/// Returns the iterations; exact (0 iterations) when b = H Z c.
+template <class Potential>
+int deflated_pcg(Potential& P, const MatrixX& Z, const MatrixX& HZ,
+                 const Eigen::LDLT<MatrixX>& E, const VectorX& b, VectorX& x, double tol,
+                 int max_it, double* relres = nullptr) {
+  const double bn = b.norm();
+  auto coarse = [&](const VectorX& y) -> VectorX {  // Z E^-1 (HZ)^T y
+    if (Z.cols() == 0) return VectorX::Zero(y.size());
+    return Z * E.solve(HZ.transpose() * y);
+  };
+  x = Z.cols() ? VectorX(Z * E.solve(Z.transpose() * b)) : VectorX::Zero(b.size());
+  VectorX r = b;
+  if (Z.cols()) r -= HZ * E.solve(Z.transpose() * b);
+  P.mask(r);
+  double rn = r.norm();
+  if (relres) *relres = bn > 0 ? rn / bn : 0;
+  if (rn <= tol * bn || bn == 0) return 0;
+  VectorX z, p, w;
+  P.precondition(r, z);
+  p = z - coarse(z);
+  double rz = r.dot(z);
+  int it = 0;
+  while (it < max_it) {
+    P.hessian_vector(p, w);
+    const double pw = p.dot(w);
+    if (!(pw > 0)) break;  // not SPD along p (should not happen after projection)
+    const double alpha = rz / pw;
+    x += alpha * p;
+    r -= alpha * w;
+    ++it;
+    rn = r.norm();
+    if (relres) *relres = rn / bn;
+    if (rn <= tol * bn || !std::isfinite(rn)) break;
+    P.precondition(r, z);
+    const double rz_new = r.dot(z);
+    const double beta = rz_new / rz;
+    rz = rz_new;
+    p = z + beta * p - coarse(z);
+  }
+  return it;
+}
+
+namespace detail {
+/// Backtracking Armijo line search on Phi along d from q (g = grad Phi(q), phi = Phi(q)).
+/// On success q, g, b, phi hold the new point. Where the predicted decrease alpha |g.d| is
+/// below the round-off of Phi (near convergence, or far from the origin) Armijo cannot decide;
+/// there a trial is accepted when it reduces ||g|| instead.
+template <class Potential>
+bool line_search(Potential& P, VectorX& q, VectorX& g, VectorX& b, double& phi, const VectorX& d,
+                 int max_trials, Index* bad) {
+  const double gd = g.dot(d);
+  double alpha = 1.0;
+  VectorX qn, gn, bn;
+  const double gnorm = g.norm();
+  const double noise = 1e-12 * std::max(1.0, std::abs(phi));
+  for (int t = 0; t < max_trials; ++t, alpha *= 0.5) {
+    qn = q + alpha * d;
+    const double pn = P.value(qn);
+    if (!std::isfinite(pn)) continue;
+    const bool armijo = pn <= phi + 1e-4 * alpha * gd;
+    const bool undecidable = alpha * std::abs(gd) <= noise;
+    if (!armijo && !undecidable) continue;
+    if (!P.gradient(qn, gn, bn, bad)) continue;
+    if (!armijo && !(gn.norm() < gnorm)) {
+      if (undecidable) break;  // halving further only shrinks a step that does not help
+      continue;
+    }
+    q.swap(qn);
+    g.swap(gn);
+    b.swap(bn);
+    phi = pn;
+    return true;
+  }
+  return false;
+}
+}  // namespace detail
+
+/// \brief Newton-Krylov on Phi: outer Newton steps with per-element PSD-projected Hessians,
+/// inner deflated PCG preconditioned by A^-1 (the persistent factor; no refactorization), the
+/// forcing term eta = min(forcing_max, sqrt(||g|| / f0)) (superlinear), Armijo backtracking.
+/// q holds the first iterate (Dirichlet values imposed) on entry and the answer on exit.
+template <class Potential>
+MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
+                           const std::vector<std::vector<Index>>& regions,
+                           const MethodOptions& o, int max_iterations) {
+  MethodResult res;
+  VectorX g, b;
+  Index bad = -1;
+  if (!P.gradient(q, g, b, &bad)) {
+    res.non_finite = true;
+    res.message = "non-finite local projection at element " + std::to_string(bad);
+    return res;
+  }
+  double gn = g.norm();
+  test.f0 = gn;
+  double phi = P.value(q);
+  while (true) {
+    res.gradient_ratio = test.ratio(gn);
+    if (test.passed(gn)) {
+      res.converged = true;
+      return res;
+    }
+    if (res.iterations >= max_iterations) break;
+    res.projected_elements = P.update_hessian(q);
+    MatrixX Z(q.size(), 0), HZ(q.size(), 0);
+    if (o.deflation && !regions.empty()) {
+      Z = deflation_basis(P, regions, q);
+      HZ.resize(q.size(), Z.cols());
+      VectorX col;
+      for (Index j = 0; j < Z.cols(); ++j) {
+        P.hessian_vector(Z.col(j), col);
+        HZ.col(j) = col;
+      }
+    }
+    Eigen::LDLT<MatrixX> E;
+    if (Z.cols()) E.compute(Z.transpose() * HZ);
+    double eta = std::min(o.forcing_max, std::sqrt(gn / std::max(test.f0, 1e-300)));
+    VectorX d;
+    const VectorX rhs = -g;
+    auto solve = [&](double tol) {
+      res.inner_iterations += 1 + deflated_pcg(P, Z, HZ, E, rhs, d, tol, o.max_cg_iterations);
+      if (!d.allFinite() || !(g.dot(d) < 0)) P.precondition(rhs, d);  // steepest descent in A
+    };
+    solve(eta);
+    ++res.iterations;
+    bool moved = detail::line_search(P, q, g, b, phi, d, o.max_line_search, &bad);
+    if (!moved && eta > 1e-6) {
+      // A loose inner solve can fail to reduce ||g|| where Armijo cannot decide: solve tightly.
+      eta = 1e-6;
+      solve(eta);
+      moved = detail::line_search(P, q, g, b, phi, d, o.max_line_search, &bad);
+    }
+    if (!moved) {
+      std::ostringstream os;
+      os << "line search failed at Newton iteration " << res.iterations << " (gradient ratio "
+         << test.ratio(gn) << ")";
+      res.message = os.str();
+      return res;
+    }
+    gn = g.norm();
+  }
+  std::ostringstream os;
+  os << "not converged after " << res.iterations << " Newton iterations (gradient ratio "
+     << res.gradient_ratio << ")";
+  res.message = os.str();
+  return res;
+}
+
+/// \brief L-BFGS on Phi with H0^-1 = A^-1 (two-loop recursion), Armijo backtracking, the
+/// preconditioned steepest descent direction when the L-BFGS direction does not descend.
+template <class Potential>
+MethodResult lbfgs(Potential& P, VectorX& q, GradientTest& test, const MethodOptions& o,
+                   int max_iterations) {
+  MethodResult res;
+  VectorX g, b;
+  Index bad = -1;
+  if (!P.gradient(q, g, b, &bad)) {
+    res.non_finite = true;
+    res.message = "non-finite local projection at element " + std::to_string(bad);
+    return res;
+  }
+  double gn = g.norm();
+  test.f0 = gn;
+  double phi = P.value(q);
+  std::deque<VectorX> S, Y;
+  std::deque<double> rho;
+  while (true) {
+    res.gradient_ratio = test.ratio(gn);
+    if (test.passed(gn)) {
+      res.converged = true;
+      return res;
+    }
+    if (res.iterations >= max_iterations) break;
+    // Two-loop recursion with H0 = A^-1.
+    VectorX r = g;
+    std::vector<double> al(S.size());
+    for (int i = static_cast<int>(S.size()) - 1; i >= 0; --i) {
+      al[i] = rho[i] * S[i].dot(r);
+      r -= al[i] * Y[i];
+    }
+    VectorX z;
+    P.precondition(r, z);
+    ++res.inner_iterations;
+    for (size_t i = 0; i < S.size(); ++i) {
+      const double be = rho[i] * Y[i].dot(z);
+      z += (al[i] - be) * S[i];
+    }
+    VectorX d = -z;
+    if (!(g.dot(d) < 0)) {
+      S.clear(), Y.clear(), rho.clear();
+      P.precondition(g, d);
+      ++res.inner_iterations;
+      d = -d;
+    }
+    const VectorX q_old = q, g_old = g;
+    ++res.iterations;
+    if (!detail::line_search(P, q, g, b, phi, d, o.max_line_search, &bad)) {
+      std::ostringstream os;
+      os << "line search failed at L-BFGS iteration " << res.iterations << " (gradient ratio "
+         << test.ratio(gn) << ")";
+      res.message = os.str();
+      return res;
+    }
+    gn = g.norm();
+    VectorX s = q - q_old, y = g - g_old;
+    const double sy = s.dot(y);
+    if (sy > 1e-14 * s.norm() * y.norm()) {
+      S.push_back(std::move(s));
+      Y.push_back(std::move(y));
+      rho.push_back(1.0 / sy);
+      if (static_cast<int>(S.size()) > o.lbfgs_history) S.pop_front(), Y.pop_front(), rho.pop_front();
+    }
+  }
+  std::ostringstream os;
+  os << "not converged after " << res.iterations << " L-BFGS iterations (gradient ratio "
+     << res.gradient_ratio << ")";
+  res.message = os.str();
+  return res;
+}
+
+/// \brief The projected Hessian of Phi as a sparse matrix on the free DoFs (flat indices
+/// `free`): mass and damping from A plus sum_e V_e G_e^T P(H_e) G_e. For direct Newton and tests.
+template <class Potential>
+SparseMatrix assemble_projected_hessian(Potential& P, const std::vector<Index>& free_index,
+                                        Index n_free) {
+  constexpr int Dim = Potential::Dim;
+  auto& s = P.solver();
+  const auto& mesh = s.mesh();
+  const auto& T = mesh.elements();
+  const auto& As = s.system().matrix();
+  std::vector<Eigen::Triplet<double, Index>> trips;
+  // A_s (x) I minus the corrections.
+  for (Index j = 0; j < As.outerSize(); ++j)
+    for (SparseMatrix::InnerIterator it(As, j); it; ++it)
+      for (int k = 0; k < Dim; ++k) {
+        const Index r = free_index[Dim * it.row() + k], c = free_index[Dim * it.col() + k];
+        if (r >= 0 && c >= 0) trips.emplace_back(r, c, it.value());
+      }
+  const auto& corr = P.corrections();
+  for (Index e = 0; e < mesh.num_elements(); ++e) {
+    const auto& g = mesh.shape_gradients(e);  // Dim x (Dim + 1)
+    // vec(F) (column-major) = sum_a g(j, a) x_a(i) at index i + Dim j.
+    Eigen::Matrix<double, Dim * Dim, Dim*(Dim + 1)> B =
+        Eigen::Matrix<double, Dim * Dim, Dim*(Dim + 1)>::Zero();
+    for (int a = 0; a <= Dim; ++a)
+      for (int i = 0; i < Dim; ++i)
+        for (int j = 0; j < Dim; ++j) B(i + Dim * j, Dim * a + i) = g(j, a);
+    const Eigen::Matrix<double, Dim*(Dim + 1), Dim*(Dim + 1)> L =
+        -mesh.rest_volume(e) * B.transpose() * corr[e] * B;
+    for (int a = 0; a <= Dim; ++a)
+      for (int i = 0; i < Dim; ++i) {
+        const Index r = free_index[Dim * T(e, a) + i];
+        if (r < 0) continue;
+        for (int c = 0; c <= Dim; ++c)
+          for (int j = 0; j < Dim; ++j) {
+            const Index cc = free_index[Dim * T(e, c) + j];
+            if (cc >= 0) trips.emplace_back(r, cc, L(Dim * a + i, Dim * c + j));
+          }
+      }
+  }
+  SparseMatrix H(n_free, n_free);
+  H.setFromTriplets(trips.begin(), trips.end());
+  return H;
+}
+
+/// \brief Direct Newton on Phi: the projected Hessian assembled and factored (CHOLMOD, pattern
+/// analysed once per step) every Newton step; Armijo backtracking. The same-model reference.
+template <class Potential>
+MethodResult newton_direct(Potential& P, VectorX& q, GradientTest& test, const MethodOptions& o,
+                           int max_iterations) {
+  MethodResult res;
+  VectorX g, b;
+  Index bad = -1;
+  if (!P.gradient(q, g, b, &bad)) {
+    res.non_finite = true;
+    res.message = "non-finite local projection at element " + std::to_string(bad);
+    return res;
+  }
+  double gn = g.norm();
+  test.f0 = gn;
+  double phi = P.value(q);
+  // Free DoF numbering.
+  const Index n = q.size();
+  VectorX ones = VectorX::Ones(n);
+  P.mask(ones);
+  std::vector<Index> free_index(n, -1);
+  Index nf = 0;
+  for (Index i = 0; i < n; ++i)
+    if (ones[i] != 0) free_index[i] = nf++;
+  SparseFactor factor;
+  bool analysed = false;
+  while (true) {
+    res.gradient_ratio = test.ratio(gn);
+    if (test.passed(gn)) {
+      res.converged = true;
+      return res;
+    }
+    if (res.iterations >= max_iterations || nf == 0) break;
+    res.projected_elements = P.update_hessian(q);
+    const SparseMatrix H = assemble_projected_hessian(P, free_index, nf);
+    if (!analysed) factor.analyze_pattern(H), analysed = true;
+    factor.factorize(H);
+    VectorX gf(nf);
+    for (Index i = 0; i < n; ++i)
+      if (free_index[i] >= 0) gf[free_index[i]] = g[i];
+    const MatrixX xf = factor.solve(MatrixX(-gf));
+    ++res.inner_iterations;
+    VectorX d = VectorX::Zero(n);
+    for (Index i = 0; i < n; ++i)
+      if (free_index[i] >= 0) d[i] = xf(free_index[i], 0);
+    if (!d.allFinite() || !(g.dot(d) < 0)) P.precondition(-g, d);
+    ++res.iterations;
+    if (!detail::line_search(P, q, g, b, phi, d, o.max_line_search, &bad)) {
+      std::ostringstream os;
+      os << "line search failed at Newton iteration " << res.iterations << " (gradient ratio "
+         << test.ratio(gn) << ")";
+      res.message = os.str();
+      return res;
+    }
+    gn = g.norm();
+  }
+  std::ostringstream os;
+  os << "not converged after " << res.iterations << " Newton iterations (gradient ratio "
+     << res.gradient_ratio << ")";
+  res.message = os.str();
+  return res;
+}
+
+}  // namespace diffphd

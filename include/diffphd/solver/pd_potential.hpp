@@ -1,0 +1,215 @@
+#pragma once
+/// \file pd_potential.hpp
+/// \brief PdPotential: the incremental potential Phi(q) of one PD step as a function, with its
+/// gradient (the PD residual A q - b(q)), a per-element PSD-projected Hessian, Hessian-vector
+/// products and the A^-1 preconditioner from the persistent factor (docs/solver.md,
+/// "Methods"). Every forward method (local-global with Anderson, Newton-Krylov, L-BFGS, direct
+/// Newton) minimises this same function; the convergence test reads its gradient.
+
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include <Eigen/Dense>
+
+#include "../core/mesh.hpp"
+#include "../core/types.hpp"
+
+namespace diffphd {
+
+namespace detail {
+/// F = G_e x for a flat (#V * Dim, row-major) vector x.
+template <int Dim>
+Mat<Dim> element_gradient(const SimplicialMesh<Dim>& mesh, Index e, const VectorX& x) {
+  const auto& T = mesh.elements();
+  const auto& g = mesh.shape_gradients(e);
+  Mat<Dim> F = Mat<Dim>::Zero();
+  for (int a = 0; a <= Dim; ++a)
+    F += Eigen::Map<const Vec<Dim>>(x.data() + Dim * T(e, a)) * g.col(a).transpose();
+  return F;
+}
+}  // namespace detail
+
+/// \brief Phi(q) of one implicit-Euler PD step of a Solver (borrowed), for a given start state.
+///
+/// Phi(q) = (1 + alpha h) / (2 h^2) ||q - c||_M^2 + sum_e beta_e V_e / (2 h) ||G_e (q - q_t)||^2
+///        + sum_e V_e sum_k w_k / 2 ||F_e - p_k(F_e)||^2   (fibre terms: k / 2 ||F m - p||^2),
+/// with c = (q~ + alpha h q_t) / (1 + alpha h) and q~ the inertial target of eq. (3). This form
+/// differs from the expanded one by a constant only and is evaluated without cancellation far
+/// from the origin. Its gradient is A q - b(q) (b of eq. 11 with the damping terms) because
+/// the gradient of 1/2 ||F - p(F)||^2 is F - p(F) for projections and Moreau envelopes. The
+/// Hessian is A - K, K = sum_e V_e G_e^T (sum_k w_k dp_k/dF) G_e; update_hessian() projects
+/// each element's block (sum_k w_k (I - dp_k/dF) in F-space) on the PSD cone.
+///
+/// Every vector is flat (#V * Dim, row-major); gradients and Hessian products are zero on the
+/// Dirichlet DoFs, whose values are those of `x_fixed` (constants of the step).
+template <class SolverT>
+class PdPotential {
+ public:
+  static constexpr int Dim = SolverT::kDim;
+  using EnergyPack = typename SolverT::EnergyPack;
+  using Vector = VectorX;
+  using Block = Eigen::Matrix<double, Dim * Dim, Dim * Dim>;
+
+  /// \param solver  the solver, prepared for the step (Dirichlet mask and factor current)
+  /// \param q_t  positions at the start of the step
+  /// \param q_tilde  inertial target eq. (3)
+  /// \param rhs0  constant part of b: M q~ / h^2 + alpha / h M q_t + B_beta q_t / h
+  /// \param x_fixed  values of the Dirichlet DoFs at t + h
+  PdPotential(SolverT& solver, const Vector& q_t, const Vector& q_tilde, const Vector& rhs0,
+              const Vector& x_fixed)
+      : s_(solver), q_t_(q_t), rhs0_(rhs0), xfix_(x_fixed) {
+    const double h = s_.options().h, a = s_.options().alpha;
+    c_ = (q_tilde + a * h * q_t) / (1.0 + a * h);
+    zero_ = Vector::Zero(q_t.size());
+  }
+
+  SolverT& solver() { return s_; }
+  const Vector& rhs0() const { return rhs0_; }
+  const Vector& x_fixed() const { return xfix_; }
+  Index size() const { return q_t_.size(); }
+
+  /// Phi(q) (up to a constant); +inf where a projection or the energy is not finite (a barrier
+  /// term at an inverted element).
+  double value(const Vector& q) const {
+    const auto& mesh = s_.mesh();
+    const auto& mass = s_.masses();
+    const auto& beta = s_.damping_coefficients();
+    const double h = s_.options().h, a = s_.options().alpha;
+    const Index nv = mesh.num_vertices(), ne = mesh.num_elements();
+    double inertia = 0;
+    for (Index v = 0; v < nv; ++v)
+      for (int k = 0; k < Dim; ++k) {
+        const double d = q[Dim * v + k] - c_[Dim * v + k];
+        inertia += mass[v] * d * d;
+      }
+    double phi = (1.0 + a * h) / (2 * h * h) * inertia;
+    const auto& params = s_.element_params();
+    const auto& means = s_.element_means();
+    std::vector<double> per(ne);
+    SolverT::backend_type::for_each_element(ne, [&](Index e) {
+      const Mat<Dim> F = detail::element_gradient(mesh, e, q);
+      double v = EnergyPack::template potential_energy<double, Dim>(F, params[e], means[e]);
+      if (beta.size() == ne && beta[e] > 0) {
+        const Mat<Dim> Ft = detail::element_gradient(mesh, e, q_t_);
+        v += beta[e] / (2 * h) * (F - Ft).squaredNorm();
+      }
+      per[e] = mesh.rest_volume(e) * v;
+    });
+    for (double v : per) phi += v;
+    return std::isfinite(phi) ? phi : std::numeric_limits<double>::infinity();
+  }
+
+  /// g = A q - b(q) on the free DoFs (zero on fixed ones); `b` receives b(q) (with rhs0).
+  /// Returns false when a local projection is not finite (`bad_element` names it).
+  bool gradient(const Vector& q, Vector& g, Vector& b, Index* bad_element = nullptr) {
+    if (!s_.local_rhs(q, b, bad_element)) return false;
+    b += rhs0_;
+    residual(q, b, g);
+    return true;
+  }
+  /// g = A q - b on the free DoFs for a given b = b(q).
+  void residual(const Vector& q, const Vector& b, Vector& g) const {
+    apply_A(q, g);
+    g -= b;
+    mask(g);
+  }
+
+  /// out = A_s (x) I x (no masking).
+  void apply_A(const Vector& x, Vector& out) const {
+    const Index nv = s_.mesh().num_vertices();
+    using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Dim, Eigen::RowMajor>;
+    out.resize(x.size());
+    Eigen::Map<RowMat>(out.data(), nv, Dim).noalias() =
+        s_.system().matrix() * Eigen::Map<const RowMat>(x.data(), nv, Dim);
+  }
+
+  /// Per-element Hessian blocks at q: H_e = A-part - sum_k w_k dp_k/dF, projected on the PSD
+  /// cone (eigenvalues below 0 set to 0) when indefinite. Stores the correction
+  /// C_e = A-part - P(H_e) so that H v = A v - sum_e V_e G_e^T C_e G_e v. Returns the number of
+  /// elements whose block was projected.
+  int update_hessian(const Vector& q) {
+    const auto& mesh = s_.mesh();
+    const Index ne = mesh.num_elements();
+    const auto& params = s_.element_params();
+    const auto& means = s_.element_means();
+    corr_.resize(static_cast<size_t>(ne));
+    std::vector<unsigned char> projected(ne, 0);
+    SolverT::backend_type::for_each_element(ne, [&](Index e) {
+      const Mat<Dim> F = detail::element_gradient(mesh, e, q);
+      const Block D =
+          EnergyPack::template weighted_differential<double, Dim>(F, params[e], means[e]);
+      const Block Aop = a_part(params[e]);
+      Block He = Aop - D;
+      He = 0.5 * (He + He.transpose()).eval();
+      // Cheap PSD test first (most blocks pass); eigen-projection only where it fails.
+      Eigen::LDLT<Block> ldlt(He);
+      const double tol = 1e-12 * std::max(1.0, Aop.diagonal().maxCoeff());
+      bool psd = ldlt.info() == Eigen::Success && ldlt.vectorD().minCoeff() >= -tol;
+      if (!psd) {
+        Eigen::SelfAdjointEigenSolver<Block> es(He);
+        const auto lam = es.eigenvalues().cwiseMax(0.0);
+        He = es.eigenvectors() * lam.asDiagonal() * es.eigenvectors().transpose();
+        projected[e] = 1;
+      }
+      corr_[e] = Aop - He;
+    });
+    int count = 0;
+    for (auto p : projected) count += p;
+    return count;
+  }
+
+  /// out = H x on the free DoFs (x must be zero on the fixed DoFs); update_hessian() first.
+  void hessian_vector(const Vector& x, Vector& out) {
+    apply_A(x, out);
+    Vector kx;
+    s_.element_scatter(x, kx, [&](Index e, const Mat<Dim>& Fx) -> Mat<Dim> {
+      Mat<Dim> r;
+      Eigen::Map<Eigen::Matrix<double, Dim * Dim, 1>>(r.data()) =
+          corr_[e] * Eigen::Map<const Eigen::Matrix<double, Dim * Dim, 1>>(Fx.data());
+      return r;
+    });
+    out -= kx;
+    mask(out);
+  }
+
+  /// z = A^-1 r on the free DoFs (zero on the fixed DoFs): the persistent factor.
+  void precondition(const Vector& r, Vector& z) const {
+    SolverT::backend_type::template apply_inverse<Dim>(s_.system(), r, zero_, z);
+  }
+
+  /// Zeroes the Dirichlet DoFs of x.
+  void mask(Vector& x) const {
+    const auto& m = s_.dirichlet_mask();
+    if (m.rows() == 0) return;
+    for (Index v = 0; v < m.rows(); ++v)
+      for (int k = 0; k < Dim; ++k)
+        if (m(v, k)) x[Dim * v + k] = 0;
+  }
+
+  /// The F-space operator of the element's A block: w_iso I + k_fibre (m m^T (x) I).
+  static Block a_part(const ElementParams& p) {
+    Block A = EnergyPack::element_weight(p) * Block::Identity();
+    if constexpr (EnergyPack::has_fibre_terms) {
+      const double k = EnergyPack::fibre_weight(p);
+      if (k != 0) {
+        const Vec<Dim> m = p.fibre.template head<Dim>().normalized();
+        // vec(F m m^T) = (m m^T (x) I) vec(F), column-major vec.
+        for (int a = 0; a < Dim; ++a)
+          for (int b = 0; b < Dim; ++b)
+            A.template block<Dim, Dim>(Dim * a, Dim * b) += k * m[a] * m[b] * Mat<Dim>::Identity();
+      }
+    }
+    return A;
+  }
+
+  /// Stored per-element corrections C_e (after update_hessian()).
+  const std::vector<Block, Eigen::aligned_allocator<Block>>& corrections() const { return corr_; }
+
+ private:
+  SolverT& s_;
+  Vector q_t_, rhs0_, xfix_, c_, zero_;
+  std::vector<Block, Eigen::aligned_allocator<Block>> corr_;
+};
+
+}  // namespace diffphd

@@ -1,0 +1,354 @@
+// Tests of include/diffphd/solver/pd_potential.hpp and methods.hpp: Phi, its gradient and its
+// Hessian-vector product against central finite differences for every shipped energy (2D and
+// 3D, damping and Dirichlet DoFs), the PSD projection, the deflated CG on rigid motions of a
+// stiff region, Newton-Krylov / L-BFGS / PD against direct Newton at 1x and 1e6x, and the
+// gradient test's independence of where the body is.
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include <diffphd/energy/energy.hpp>
+#include <diffphd/io/generators.hpp>
+#include <diffphd/solver/solver.hpp>
+
+using namespace diffphd;
+
+namespace {
+
+using CoroVol = Energies<Corotated, Volume>;
+using NH = NeoHookeanProx;
+using NHLog = Energies<NeoHookeanProx, LogVolume>;
+using CoroVolMuscle = Energies<Corotated, Volume, Muscle>;
+
+template <int Dim>
+SimplicialMesh<Dim> small_mesh();
+template <>
+SimplicialMesh<3> small_mesh<3>() {
+  return make_bar(1.0, 0.2, 0.2, 5);
+}
+template <>
+SimplicialMesh<2> small_mesh<2>() {
+  return make_rectangle(Vec<2>(0, 0), Vec<2>(1.0, 0.25), Eigen::Vector2i(8, 2));
+}
+
+template <int Dim>
+std::vector<Index> vertices_at_x(const SimplicialMesh<Dim>& m, double x) {
+  std::vector<Index> v;
+  for (Index i = 0; i < m.num_vertices(); ++i)
+    if (std::abs(m.rest_positions()(i, 0) - x) < 1e-9) v.push_back(i);
+  return v;
+}
+
+/// A solver on the small mesh: soft ends, middle slab `contrast` x stiffer, left end clamped,
+/// damping on, a deformed moving state (so every term is away from its rest value).
+template <int Dim, class E>
+Solver<Dim, E> deformed_solver(double contrast, unsigned seed, double amplitude = 0.03) {
+  SimplicialMesh<Dim> mesh = small_mesh<Dim>();
+  MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000, 0});
+  mats.assign_slab(mesh, 0, 0.3, 0.7, Material{1e5 * contrast, 0.3, 1000, 1});
+  SolverOptions o;
+  o.alpha = 0.5;
+  o.beta0 = 30.0;
+  Solver<Dim, E> s(mesh, mats, o);
+  s.fix_vertices(vertices_at_x(mesh, 0.0));
+  if constexpr (Solver<Dim, E>::kHasFibreTerms) {
+    MatrixX fib = MatrixX::Zero(mesh.num_elements(), 3);
+    fib.col(0).setOnes();
+    fib.col(1).setConstant(0.3);
+    s.set_muscle(VectorX::Constant(mesh.num_elements(), 2e4), fib);
+    s.set_activation(VectorX::Constant(mesh.num_elements(), 0.9));
+  }
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  VertexMatrix<Dim> q = mesh.rest_positions(), v = VertexMatrix<Dim>::Zero(mesh.num_vertices(), Dim);
+  for (Index i = 0; i < mesh.num_vertices(); ++i)
+    for (int k = 0; k < Dim; ++k) {
+      q(i, k) += amplitude * 0.1 * u(rng) + amplitude * (k == 1 ? q(i, 0) * q(i, 0) : 0.0);
+      v(i, k) = 0.2 * u(rng);
+    }
+  for (Index i : vertices_at_x(mesh, 0.0)) q.row(i) = mesh.rest_positions().row(i);
+  s.set_state(q, v);
+  return s;
+}
+
+template <class P>
+VectorX free_random(const P& pot, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n(0, 1);
+  VectorX d(pot.size());
+  for (Index i = 0; i < d.size(); ++i) d[i] = n(rng);
+  pot.mask(d);
+  return d / d.norm();
+}
+
+/// Phi, grad Phi and H v against central differences at a deformed state.
+template <int Dim, class E>
+void check_derivatives(double contrast) {
+  auto s = deformed_solver<Dim, E>(contrast, 7);
+  auto P = s.step_potential();
+  VectorX q = Eigen::Map<const VectorX>(s.positions().data(), s.positions().size());
+  // The iterate of a step holds the Dirichlet values of t + h.
+  for (Index i = 0; i < q.size(); ++i) {
+    VectorX e = VectorX::Zero(q.size());
+    e[i] = 1;
+    P.mask(e);
+    if (e[i] == 0) q[i] = P.x_fixed()[i];
+  }
+  VectorX g, b;
+  REQUIRE(P.gradient(q, g, b));
+  const VectorX d = free_random(P, 11);
+  const double hs = 1e-6;
+  const double fd = (P.value(q + hs * d) - P.value(q - hs * d)) / (2 * hs);
+  INFO("directional derivative: analytic " << g.dot(d) << ", FD " << fd);
+  CHECK(std::abs(fd - g.dot(d)) <= 1e-6 * std::max(1.0, std::abs(fd)) + 1e-7 * g.norm());
+  // Hessian-vector product (unprojected blocks: the state is chosen so that none is projected).
+  const int projected = P.update_hessian(q);
+  VectorX Hd;
+  P.hessian_vector(d, Hd);
+  VectorX gp, gm, bp, bm;
+  REQUIRE(P.gradient(q + hs * d, gp, bp));
+  REQUIRE(P.gradient(q - hs * d, gm, bm));
+  const VectorX fdH = (gp - gm) / (2 * hs);
+  INFO("projected elements " << projected << "; |Hd| " << Hd.norm() << ", |Hd - FD| "
+                             << (Hd - fdH).norm());
+  if (projected == 0) {
+    CHECK((Hd - fdH).norm() <= 1e-5 * fdH.norm());
+  } else {
+    // Projected blocks only add PSD mass: H_proj - H_true is PSD.
+    CHECK(d.dot(Hd) >= d.dot(fdH) - 1e-6 * fdH.norm());
+  }
+  // Symmetry of the operator.
+  const VectorX d2 = free_random(P, 13);
+  VectorX Hd2;
+  P.hessian_vector(d2, Hd2);
+  CHECK(std::abs(d2.dot(Hd) - d.dot(Hd2)) <= 1e-10 * Hd.norm());
+}
+
+/// Runs `steps` steps of a twisted bar with the given method; returns positions.
+template <int Dim, class E>
+VertexMatrix<Dim> twisted_run(double contrast, SolverMethod m, double eps, int steps,
+                              const VertexMatrix<Dim>* offset = nullptr,
+                              std::vector<int>* iterations = nullptr) {
+  SimplicialMesh<Dim> mesh = small_mesh<Dim>();
+  if (offset) mesh = SimplicialMesh<Dim>(mesh.rest_positions() + *offset, mesh.elements());
+  MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000, 0});
+  const double x0 = mesh.rest_positions().col(0).minCoeff();
+  mats.assign_slab(mesh, 0, x0 + 0.3, x0 + 0.7, Material{1e5 * contrast, 0.3, 1000, 1});
+  SolverOptions o;
+  o.method = m;
+  o.eps_rel = eps;
+  o.eps_abs = 0;
+  o.max_iterations = m == SolverMethod::PD ? 200000 : 200;
+  o.h = 1.0 / 60;
+  Solver<Dim, E> s(mesh, mats, o);
+  s.fix_vertices(vertices_at_x(mesh, x0));
+  Driver<Dim> d;
+  d.vertices = vertices_at_x(mesh, x0 + 1.0);
+  if constexpr (Dim == 3) {
+    d.kind = Driver<3>::Kind::Twist;
+    d.axis = Vec<3>::UnitX();
+    d.center = Vec<3>(x0 + 1.0, mesh.rest_positions().col(1).minCoeff() + 0.1,
+                      mesh.rest_positions().col(2).minCoeff() + 0.1);
+    d.angular_velocity = 3.0;
+  } else {
+    d.kind = Driver<2>::Kind::Pull;
+    d.velocity = Vec<3>(0, -0.6, 0);
+  }
+  s.add_driver(d);
+  for (int i = 0; i < steps; ++i) {
+    const StepReport r = s.step();
+    INFO("method " << to_string(m) << " contrast " << contrast << " step " << i << ": "
+                   << r.message);
+    REQUIRE(r.converged);
+    if (iterations) iterations->push_back(r.iterations);
+  }
+  return s.positions();
+}
+
+}  // namespace
+
+TEST_CASE("PdPotential: Phi, gradient and H v against central differences", "[methods]") {
+  SECTION("3D corotated+volume") { check_derivatives<3, CoroVol>(100); }
+  SECTION("3D neo-hookean prox") { check_derivatives<3, NH>(100); }
+  SECTION("3D neo-hookean+logvolume") { check_derivatives<3, NHLog>(100); }
+  SECTION("3D corotated+volume+muscle") { check_derivatives<3, CoroVolMuscle>(10); }
+  SECTION("3D corotated") { check_derivatives<3, Corotated>(1e6); }
+  SECTION("2D corotated+volume") { check_derivatives<2, CoroVol>(100); }
+  SECTION("2D neo-hookean prox") { check_derivatives<2, NH>(1e4); }
+  SECTION("2D neo-hookean+logvolume") { check_derivatives<2, NHLog>(10); }
+}
+
+TEST_CASE("PdPotential: the gradient is the PD residual A q - b(q)", "[methods]") {
+  auto s = deformed_solver<3, CoroVol>(10, 3);
+  auto P = s.step_potential();
+  VectorX q = Eigen::Map<const VectorX>(s.positions().data(), s.positions().size());
+  VectorX g, b, bel;
+  REQUIRE(P.gradient(q, g, b));
+  REQUIRE(s.local_rhs(q, bel));
+  // Slow oracle: the assembled A (x) I times q minus the local step minus rhs0.
+  const SparseMatrix& As = s.system().matrix();
+  VectorX r(q.size());
+  for (int k = 0; k < 3; ++k) {
+    VectorX qk(As.rows());
+    for (Index v = 0; v < As.rows(); ++v) qk[v] = q[3 * v + k];
+    const VectorX Aq = As * qk;
+    for (Index v = 0; v < As.rows(); ++v) r[3 * v + k] = Aq[v] - bel[3 * v + k] - P.rhs0()[3 * v + k];
+  }
+  P.mask(r);
+  CHECK((r - g).norm() <= 1e-12 * r.norm());
+}
+
+TEST_CASE("PdPotential: indefinite element blocks are projected to PSD", "[methods]") {
+  // A compressed state: corotated blocks turn indefinite (singular values sum below 2).
+  auto s = deformed_solver<3, CoroVol>(1, 5, 0.0);
+  VertexMatrix<3> q = s.mesh().rest_positions() * 0.6;
+  s.set_state(q, VertexMatrix<3>::Zero(q.rows(), 3));
+  auto P = s.step_potential();
+  VectorX qf = Eigen::Map<const VectorX>(q.data(), q.size());
+  const int projected = P.update_hessian(qf);
+  CHECK(projected > 0);
+  for (size_t e = 0; e < P.corrections().size(); ++e) {
+    using B = Eigen::Matrix<double, 9, 9>;
+    const B He = P.a_part(s.element_params()[e]) - P.corrections()[e];
+    Eigen::SelfAdjointEigenSolver<B> es(He);
+    REQUIRE(es.eigenvalues().minCoeff() >= -1e-8 * std::max(1.0, es.eigenvalues().maxCoeff()));
+  }
+}
+
+TEST_CASE("Deflated PCG is exact on rigid motions of a stiff region", "[methods]") {
+  auto s = deformed_solver<3, CoroVol>(1e4, 9);
+  auto P = s.step_potential();
+  VectorX q = Eigen::Map<const VectorX>(s.positions().data(), s.positions().size());
+  P.update_hessian(q);
+  const auto& regions = s.deflation_regions();
+  REQUIRE(regions.size() == 2);  // the stiff slab and the body
+  const MatrixX Z = deflation_basis(P, regions, q);
+  CHECK(Z.cols() == 12);
+  MatrixX HZ(Z.rows(), Z.cols());
+  VectorX col;
+  for (Index j = 0; j < Z.cols(); ++j) {
+    P.hessian_vector(Z.col(j), col);
+    HZ.col(j) = col;
+  }
+  Eigen::LDLT<MatrixX> E(Z.transpose() * HZ);
+  // b = H u for a rigid rotation u of the stiff slab only (zero elsewhere).
+  VectorX u = VectorX::Zero(q.size());
+  Vec<3> c = Vec<3>::Zero();
+  for (Index v : regions[0]) c += q.segment<3>(3 * v);
+  c /= regions[0].size();
+  for (Index v : regions[0]) u.segment<3>(3 * v) = Vec<3>(0.3, -0.2, 1.0).cross(q.segment<3>(3 * v) - c);
+  VectorX b;
+  P.hessian_vector(u, b);
+  VectorX x;
+  double relres = 1;
+  const int it = deflated_pcg(P, Z, HZ, E, b, x, 1e-12, 100, &relres);
+  CHECK(it == 0);
+  CHECK((x - u).norm() <= 1e-8 * u.norm());
+  // A general right-hand side converges, and the residual is what it reports.
+  const VectorX r0 = free_random(P, 17);
+  const int it2 = deflated_pcg(P, Z, HZ, E, r0, x, 1e-10, 500, &relres);
+  VectorX Hx;
+  P.hessian_vector(x, Hx);
+  CHECK(it2 > 0);
+  CHECK((r0 - Hx).norm() <= 2e-10 * r0.norm());
+}
+
+TEST_CASE("Newton-Krylov, L-BFGS and PD agree with direct Newton", "[methods]") {
+  for (double contrast : {1.0, 1e6}) {
+    const auto ref = twisted_run<3, CoroVol>(contrast, SolverMethod::NewtonDirect, 1e-12, 3);
+    const auto nk = twisted_run<3, CoroVol>(contrast, SolverMethod::NewtonKrylov, 1e-12, 3);
+    const double scale = (ref - small_mesh<3>().rest_positions()).cwiseAbs().maxCoeff();
+    REQUIRE(scale > 1e-3);
+    INFO("contrast " << contrast);
+    CHECK((nk - ref).cwiseAbs().maxCoeff() <= 1e-8 * scale);
+    if (contrast == 1.0) {
+      // L-BFGS and PD stall at 1e6x (the reason Newton-Krylov exists): compared at 1x.
+      const auto lb = twisted_run<3, CoroVol>(contrast, SolverMethod::LBFGS, 1e-10, 3);
+      CHECK((lb - ref).cwiseAbs().maxCoeff() <= 1e-6 * scale);
+      const auto pd = twisted_run<3, CoroVol>(contrast, SolverMethod::PD, 1e-10, 3);
+      CHECK((pd - ref).cwiseAbs().maxCoeff() <= 1e-6 * scale);
+    }
+  }
+  const auto ref2 = twisted_run<2, NH>(1e6, SolverMethod::NewtonDirect, 1e-12, 3);
+  const auto nk2 = twisted_run<2, NH>(1e6, SolverMethod::NewtonKrylov, 1e-12, 3);
+  const double scale2 = (ref2 - small_mesh<2>().rest_positions()).cwiseAbs().maxCoeff();
+  CHECK((nk2 - ref2).cwiseAbs().maxCoeff() <= 1e-8 * scale2);
+}
+
+TEST_CASE("The gradient test gives the same iterations for a body translated by 100 m",
+          "[methods]") {
+  const Index nv = small_mesh<3>().num_vertices();
+  const VertexMatrix<3> off = VertexMatrix<3>::Constant(nv, 3, 100.0);
+  for (SolverMethod m : {SolverMethod::NewtonKrylov, SolverMethod::PD}) {
+    std::vector<int> near_its, far_its;
+    const auto near = twisted_run<3, CoroVol>(100, m, 1e-6, 3, nullptr, &near_its);
+    const auto far = twisted_run<3, CoroVol>(100, m, 1e-6, 3, &off, &far_its);
+    INFO("method " << to_string(m));
+    if (m == SolverMethod::NewtonKrylov) {
+      CHECK(near_its == far_its);
+    } else {
+      // Anderson's extrapolation amplifies the round-off of coordinates near 100 m: the
+      // counts (~800 per step at 100x) agree to a few percent, not exactly.
+      for (size_t i = 0; i < near_its.size(); ++i)
+        CHECK(std::abs(near_its[i] - far_its[i]) <= 0.05 * near_its[i]);
+    }
+    CHECK((far - off - near).cwiseAbs().maxCoeff() <= 1e-7);
+  }
+}
+
+TEST_CASE("The gradient test stops at once for a body at rest", "[methods]") {
+  SimplicialMesh<3> mesh = small_mesh<3>();
+  MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000, 0});
+  for (SolverMethod m : {SolverMethod::NewtonKrylov, SolverMethod::PD, SolverMethod::LBFGS}) {
+    SolverOptions o;
+    o.method = m;
+    o.gravity.setZero();
+    Solver<3, CoroVol> s(mesh, mats, o);
+    s.fix_vertices(vertices_at_x(mesh, 0.0));
+    const StepReport r = s.step();
+    CHECK(r.converged);
+    CHECK(r.iterations <= 1);
+    CHECK((s.positions() - mesh.rest_positions()).cwiseAbs().maxCoeff() == 0.0);
+  }
+}
+
+TEST_CASE("A non-finite local step stops every method with NonFinite, state unchanged",
+          "[methods]") {
+  for (SolverMethod m : {SolverMethod::NewtonKrylov, SolverMethod::LBFGS,
+                         SolverMethod::NewtonDirect}) {
+    SimplicialMesh<3> mesh = small_mesh<3>();
+    MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000, 0});
+    SolverOptions o;
+    o.method = m;
+    Solver<3, CoroVol> s(mesh, mats, o);
+    s.fix_vertices(vertices_at_x(mesh, 0.0));
+    Driver<3> d;
+    d.kind = Driver<3>::Kind::Pull;
+    d.vertices = vertices_at_x(mesh, 1.0);
+    d.velocity = Vec<3>(std::numeric_limits<double>::infinity(), 0, 0);
+    s.add_driver(d);
+    const StepReport r = s.step();
+    INFO(to_string(m) << ": " << r.message);
+    CHECK(r.status == StepStatus::NonFinite);
+    CHECK(r.message.find("element") != std::string::npos);
+    CHECK(s.positions() == mesh.rest_positions());
+  }
+}
+
+TEST_CASE("Newton-Krylov never refactors A (the preconditioner is the persistent factor)",
+          "[methods]") {
+  // The preconditioner is the persistent factor: 20 Newton-Krylov steps, one factorization.
+  SimplicialMesh<3> mesh = small_mesh<3>();
+  MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000, 0});
+  mats.assign_slab(mesh, 0, 0.3, 0.7, Material{1e9, 0.3, 1000, 1});
+  SolverOptions o;
+  o.method = SolverMethod::NewtonKrylov;
+  Solver<3, CoroVol> s(mesh, mats, o);
+  s.fix_vertices(vertices_at_x(mesh, 0.0));
+  const int f0 = s.factorization_count();
+  for (int i = 0; i < 20; ++i) REQUIRE(s.step().converged);
+  CHECK(s.factorization_count() == f0);
+}
