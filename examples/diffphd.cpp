@@ -18,6 +18,7 @@
 #include <string>
 
 #include <CLI/CLI.hpp>
+#include <Eigen/Core>
 #include <nlohmann/json.hpp>
 
 #include <diffphd/diffphd.hpp>
@@ -128,6 +129,11 @@ int cmd_optimize(const std::string& task_path, std::optional<int> max_evals,
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Eigen's own OpenMP split of dense products: the tool's dense products are small (the
+  // deflation basis of Newton-Krylov, contact blocks) and its threads spin against the element
+  // loops on 2 loaded cores (measured: the demo's Newton-Krylov steps 2.7x slower). The element
+  // loops keep their OpenMP parallelism.
+  Eigen::setNbThreads(1);
   CLI::App app{"diffphd: differentiable projective dynamics for heterogeneous soft bodies"};
   app.set_version_flag("--version", std::string("diffphd ") + diffphd::version());
   app.require_subcommand(1);

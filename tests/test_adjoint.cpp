@@ -373,6 +373,9 @@ struct StretchedBlock {
     o.max_iterations = 50000;
     o.gate_scale = GateScale::StepRelative;
     o.anderson_window = 5;
+    // The local-global iteration: with one free DoF and eps_rel 1e-12 the gradient test asks for
+    // less than the round-off of this single stiff element's forces.
+    o.method = SolverMethod::PD;
     Solver<3, NeoHookeanProx> sim(mesh, materials, o);
     sim.set_state(q0, v0);
     sim.fix_vertices({0, 1, 2});

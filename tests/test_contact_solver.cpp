@@ -137,6 +137,7 @@ TEST_CASE("contact: K = 0 (no collider in reach) gives the contact-free solver's
   MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000});
   SolverOptions o = tight_options(1.0 / 60);
   o.eps_rel = 1e-6;
+  o.method = SolverMethod::PD;  // "auto" picks Newton-Krylov without a contact model
   Solver<3, Pack> free(mesh, mats, o);
   ContactSolver with(mesh, mats, o);
   Collider<3> far;

@@ -276,6 +276,10 @@ TEST_CASE("Newton: quasi-static cantilever against the PD solver (Corotated, nu 
   so.eps_abs = 1e-14;
   so.max_iterations = 20000;
   so.anderson_window = 5;
+  // The local-global iteration (Newton-Krylov at h = 1e4 s stalls at the round-off of the
+  // gradient before eps_rel 1e-9: a known limit, docs/solver.md).
+  so.method = SolverMethod::PD;
+  so.gate_scale = GateScale::Paper;  // the settings this comparison was made with
   Solver<3, Corotated> pd(mesh, mat, so);
   pd.fix_vertices(left);
   const StepReport rp = pd.step();

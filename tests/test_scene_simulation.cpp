@@ -36,6 +36,8 @@ Vec<3> center_of_mass(const VertexMatrix<3>& x, const VectorX& m) {
 
 TEST_CASE("scene -> solver options: gate, overrides, contrast exponents", "[scene][solver]") {
   io::SceneSpec s = io::load_scene(kData + "good_small.json");
+  CHECK(scene_solver_options(s, 3).gate_scale == GateScale::Paper);
+  s.solver.gate = io::Gate::Gradient;
   CHECK(scene_solver_options(s, 3).gate_scale == GateScale::Gradient);
   CHECK(scene_solver_options(s, 3).method == SolverMethod::Auto);
   s.solver.method = "newton-krylov";

@@ -79,7 +79,8 @@ enum class InitialGuess {
 
 /// \brief The convergence test of a step.
 enum class GateScale {
-  /// Default, every method: ||grad Phi(q)|| on the free DoFs (Phi the step's PD potential,
+  /// Every method but pd always uses it; for pd it is opt-in (default Paper below):
+  /// ||grad Phi(q)|| on the free DoFs (Phi the step's PD potential,
   /// grad Phi = A q - b(q)) against eps_rel times its value at the step's first iterate, plus
   /// eps_abs times the body's weight under 9.81 m/s^2 (GradientTest). Independent of where the
   /// body is and defined at rest; it bounds the distance to the fixed point where the increment
@@ -128,7 +129,7 @@ struct SolverOptions {
   double anderson_reset = 10.0;  ///< discard the AA history when ||gamma||_2 exceeds this
   /// Relative tolerance of the convergence test (gradient test: against the first iterate's
   /// force imbalance; increment gates: eq. (22)).
-  double eps_rel = 1e-6;
+  double eps_rel = 1e-4;
   /// Absolute tolerance (gradient test: a fraction of the body's weight under 9.81 m/s^2;
   /// increment gates: metres and the units of b, eq. (22)).
   double eps_abs = 1e-8;
@@ -139,7 +140,7 @@ struct SolverOptions {
   MethodOptions newton;                     ///< Newton-Krylov, direct Newton and L-BFGS options
   WeightRouting routing = WeightRouting::StiffnessAware;
   InitialGuess initial_guess = InitialGuess::Inertial;  ///< first iterate of a step
-  GateScale gate_scale = GateScale::Gradient;           ///< convergence test (pd only; the
+  GateScale gate_scale = GateScale::Paper;              ///< convergence test (pd only; the
                                                         ///< other methods always use Gradient)
   Vec<3> gravity = Vec<3>(0, -9.81, 0);                 ///< m/s^2; the first Dim entries are used
 };
@@ -505,14 +506,12 @@ class Solver {
     return regions_;
   }
 
-  /// The method a step runs under the current options (SolverMethod::Auto resolved by the
-  /// rule of docs/solver.md: pd when contact is enabled, newton-krylov otherwise).
+  /// The method a step runs under the current options. SolverMethod::Auto resolves to pd for
+  /// now: the measured case for newton-krylov (docs/solver.md, "Methods") is not yet carried
+  /// through the retuned test suite; scenes opt in with "method" (scenes/demo.json does).
   SolverMethod resolve_method() const {
     if (options_.method != SolverMethod::Auto) return options_.method;
-    if constexpr (kHasContact) {
-      if (contact_.enabled()) return SolverMethod::PD;
-    }
-    return SolverMethod::NewtonKrylov;
+    return SolverMethod::PD;
   }
 
  private:
