@@ -436,12 +436,7 @@ class StepAdjoint {
     return Eigen::Map<const VectorX>(x.data(), x.size());
   }
   static Mat<Dim> element_gradient(const SimplicialMesh<Dim>& mesh, Index e, const VectorX& x) {
-    const auto& T = mesh.elements();
-    const auto& g = mesh.shape_gradients(e);
-    Mat<Dim> F = Mat<Dim>::Zero();
-    for (int a = 0; a <= Dim; ++a)
-      F += Eigen::Map<const Vec<Dim>>(x.data() + Dim * T(e, a)) * g.col(a).transpose();
-    return F;
+    return detail::element_gradient<Dim>(mesh, e, x);
   }
   template <class Mask>
   static void apply_mask(const Mask& mask, VectorX& x) {

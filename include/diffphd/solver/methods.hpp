@@ -198,13 +198,22 @@ MatrixX deflation_basis(const Potential& P, const std::vector<std::vector<Index>
     P.mask(zj);
     Z.col(j) = zj;
   }
-  // Orthonormalise, dropping dependent columns (fixed regions, a region inside another's span).
-  Eigen::ColPivHouseholderQR<MatrixX> qr(Z);
-  qr.setThreshold(1e-10);
-  const Index rank = qr.rank();
-  if (rank == 0) return MatrixX(n, 0);
-  MatrixX Q = qr.householderQ() * MatrixX::Identity(n, rank);
-  return Q;
+  // Orthonormalise by modified Gram-Schmidt (twice), dropping dependent columns (a fixed
+  // region, a region inside another's span). Column loops only: no dense product that Eigen
+  // would split over threads for a k of 6-20.
+  MatrixX Q(n, Z.cols());
+  Index rank = 0;
+  for (Index j = 0; j < Z.cols(); ++j) {
+    VectorX z = Z.col(j);
+    const double n0 = z.norm();
+    if (!(n0 > 0)) continue;
+    for (int pass = 0; pass < 2; ++pass)
+      for (Index i = 0; i < rank; ++i) z -= Q.col(i).dot(z) * Q.col(i);
+    const double nz = z.norm();
+    if (nz <= 1e-10 * n0) continue;
+    Q.col(rank++) = z / nz;
+  }
+  return Q.leftCols(rank);
 }
 
 /// \brief Deflated preconditioned CG (Saad, Yeung, Erhel and Guyomarc'h 2000): solves H x = b on
@@ -287,6 +296,56 @@ bool line_search(Potential& P, VectorX& q, VectorX& g, VectorX& b, double& phi, 
 }
 }  // namespace detail
 
+namespace detail {
+/// The first gradient of a method: sets g, b, the test's f0, ||g|| and Phi(q). False (res
+/// filled) when a local projection is not finite.
+template <class Potential>
+bool start_method(Potential& P, const VectorX& q, GradientTest& test, MethodResult& res,
+                  VectorX& g, VectorX& b, double& gn, double& phi) {
+  Index bad = -1;
+  if (!P.gradient(q, g, b, &bad)) {
+    res.non_finite = true;
+    res.message = "iteration 0: non-finite local projection at element " + std::to_string(bad);
+    return false;
+  }
+  gn = g.norm();
+  test.f0 = gn;
+  phi = P.value(q);
+  return true;
+}
+
+/// Progress watch: a method that has not halved ||g|| in `window` iterations is stuck (at the
+/// round-off of grad Phi, or on a non-smooth kink) and stops, reporting it, instead of running
+/// to max_iterations.
+struct StallWatch {
+  int window = 10;
+  double ref = std::numeric_limits<double>::infinity();
+  int since = 0;
+  bool stalled(double gn) {
+    if (gn <= 0.5 * ref) {
+      ref = gn;
+      since = 0;
+      return false;
+    }
+    return ++since >= window;
+  }
+};
+
+/// The message of a method that stopped without converging.
+inline std::string not_converged(const char* what, const MethodResult& r,
+                                 const StallWatch& watch, bool stalled) {
+  std::ostringstream os;
+  if (stalled)
+    os << "no progress in the last " << watch.window << " " << what
+       << " iterations (gradient ratio " << r.gradient_ratio
+       << "; the gradient may be at its round-off: loosen eps_rel)";
+  else
+    os << "not converged after " << r.iterations << " " << what << " iterations (gradient ratio "
+       << r.gradient_ratio << ")";
+  return os.str();
+}
+}  // namespace detail
+
 /// \brief Newton-Krylov on Phi: outer Newton steps with per-element PSD-projected Hessians,
 /// inner deflated PCG preconditioned by A^-1 (the persistent factor; no refactorization), the
 /// forcing term eta = min(forcing_max, sqrt(||g|| / f0)) (superlinear), Armijo backtracking.
@@ -298,20 +357,17 @@ MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
   MethodResult res;
   VectorX g, b;
   Index bad = -1;
-  if (!P.gradient(q, g, b, &bad)) {
-    res.non_finite = true;
-    res.message = "non-finite local projection at element " + std::to_string(bad);
-    return res;
-  }
-  double gn = g.norm();
-  test.f0 = gn;
-  double phi = P.value(q);
+  double gn = 0, phi = 0;
+  if (!detail::start_method(P, q, test, res, g, b, gn, phi)) return res;
+  detail::StallWatch watch;
+  bool stalled = false;
   while (true) {
     res.gradient_ratio = test.ratio(gn);
     if (test.passed(gn)) {
       res.converged = true;
       return res;
     }
+    if ((stalled = watch.stalled(gn))) break;
     if (res.iterations >= max_iterations) break;
     res.projected_elements = P.update_hessian(q);
     MatrixX Z(q.size(), 0), HZ(q.size(), 0);
@@ -325,7 +381,7 @@ MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
       }
     }
     Eigen::LDLT<MatrixX> E;
-    if (Z.cols()) E.compute(Z.transpose() * HZ);
+    if (Z.cols()) E.compute(MatrixX(Z.transpose().lazyProduct(HZ)));
     double eta = std::min(o.forcing_max, std::sqrt(gn / std::max(test.f0, 1e-300)));
     VectorX d;
     const VectorX rhs = -g;
@@ -351,10 +407,7 @@ MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
     }
     gn = g.norm();
   }
-  std::ostringstream os;
-  os << "not converged after " << res.iterations << " Newton iterations (gradient ratio "
-     << res.gradient_ratio << ")";
-  res.message = os.str();
+  res.message = detail::not_converged("Newton", res, watch, stalled);
   return res;
 }
 
@@ -366,14 +419,10 @@ MethodResult lbfgs(Potential& P, VectorX& q, GradientTest& test, const MethodOpt
   MethodResult res;
   VectorX g, b;
   Index bad = -1;
-  if (!P.gradient(q, g, b, &bad)) {
-    res.non_finite = true;
-    res.message = "non-finite local projection at element " + std::to_string(bad);
-    return res;
-  }
-  double gn = g.norm();
-  test.f0 = gn;
-  double phi = P.value(q);
+  double gn = 0, phi = 0;
+  if (!detail::start_method(P, q, test, res, g, b, gn, phi)) return res;
+  detail::StallWatch watch{40};  // L-BFGS reduces ||g|| slowly and not monotonically
+  bool stalled = false;
   std::deque<VectorX> S, Y;
   std::deque<double> rho;
   while (true) {
@@ -382,6 +431,7 @@ MethodResult lbfgs(Potential& P, VectorX& q, GradientTest& test, const MethodOpt
       res.converged = true;
       return res;
     }
+    if ((stalled = watch.stalled(gn))) break;
     if (res.iterations >= max_iterations) break;
     // Two-loop recursion with H0 = A^-1.
     VectorX r = g;
@@ -423,10 +473,7 @@ MethodResult lbfgs(Potential& P, VectorX& q, GradientTest& test, const MethodOpt
       if (static_cast<int>(S.size()) > o.lbfgs_history) S.pop_front(), Y.pop_front(), rho.pop_front();
     }
   }
-  std::ostringstream os;
-  os << "not converged after " << res.iterations << " L-BFGS iterations (gradient ratio "
-     << res.gradient_ratio << ")";
-  res.message = os.str();
+  res.message = detail::not_converged("L-BFGS", res, watch, stalled);
   return res;
 }
 
@@ -483,14 +530,10 @@ MethodResult newton_direct(Potential& P, VectorX& q, GradientTest& test, const M
   MethodResult res;
   VectorX g, b;
   Index bad = -1;
-  if (!P.gradient(q, g, b, &bad)) {
-    res.non_finite = true;
-    res.message = "non-finite local projection at element " + std::to_string(bad);
-    return res;
-  }
-  double gn = g.norm();
-  test.f0 = gn;
-  double phi = P.value(q);
+  double gn = 0, phi = 0;
+  if (!detail::start_method(P, q, test, res, g, b, gn, phi)) return res;
+  detail::StallWatch watch;
+  bool stalled = false;
   // Free DoF numbering.
   const Index n = q.size();
   VectorX ones = VectorX::Ones(n);
@@ -507,6 +550,7 @@ MethodResult newton_direct(Potential& P, VectorX& q, GradientTest& test, const M
       res.converged = true;
       return res;
     }
+    if ((stalled = watch.stalled(gn))) break;
     if (res.iterations >= max_iterations || nf == 0) break;
     res.projected_elements = P.update_hessian(q);
     const SparseMatrix H = assemble_projected_hessian(P, free_index, nf);
@@ -531,10 +575,7 @@ MethodResult newton_direct(Potential& P, VectorX& q, GradientTest& test, const M
     }
     gn = g.norm();
   }
-  std::ostringstream os;
-  os << "not converged after " << res.iterations << " Newton iterations (gradient ratio "
-     << res.gradient_ratio << ")";
-  res.message = os.str();
+  res.message = detail::not_converged("Newton", res, watch, stalled);
   return res;
 }
 
