@@ -117,11 +117,13 @@ int cmd_bench(const BenchOptions& opt) {
     // The same-model references: each PD configuration converged tightly (solver error only).
     // Direct Newton on the PD potential Phi itself (sparse Cholesky of the projected Hessian):
     // converges in a few iterations where a tight PD run may never (docs/solver.md, "Methods").
+    // Contact steps have no Newton method yet: their references stay tight PD runs (eps_rel at
+    // least 1e-9, the scene's gate).
     auto model_reference = [&](bool uniform) {
       SceneOverrides o;
-      o.eps_rel = opt.model_reference_eps;
+      o.eps_rel = contact ? std::max(opt.model_reference_eps, 1e-9) : opt.model_reference_eps;
       o.max_iterations = opt.model_reference_max_iterations;
-      o.method = SolverMethod::NewtonDirect;
+      o.method = contact ? SolverMethod::PD : SolverMethod::NewtonDirect;
       if (uniform) o.routing = io::Routing::Uniform;
       return bench_pd_dispatch(scene, o, frames);
     };

@@ -13,6 +13,7 @@
 #include <Eigen/Dense>
 
 #include "../core/mesh.hpp"
+#include "../core/small_matrix.hpp"
 #include "../core/types.hpp"
 
 namespace diffphd {
@@ -147,9 +148,7 @@ class PdPotential {
       const double tol = 1e-12 * std::max(1.0, Aop.diagonal().maxCoeff());
       bool psd = ldlt.info() == Eigen::Success && ldlt.vectorD().minCoeff() >= -tol;
       if (!psd) {
-        Eigen::SelfAdjointEigenSolver<Block> es(He);
-        const auto lam = es.eigenvalues().cwiseMax(0.0);
-        He = es.eigenvectors() * lam.asDiagonal() * es.eigenvectors().transpose();
+        He = project_psd(He, F);
         projected[e] = 1;
       }
       corr_[e] = Aop - He;
@@ -185,6 +184,59 @@ class PdPotential {
     for (Index v = 0; v < m.rows(); ++v)
       for (int k = 0; k < Dim; ++k)
         if (m(v, k)) x[Dim * v + k] = 0;
+  }
+
+  /// The projection of a symmetric element block on the PSD cone (eigenvalues below 0 set to
+  /// 0). For isotropic packs the block is block-diagonal in the basis vec(u_i v_j^T) of the
+  /// rotation-variant SVD F = U diag(sigma) V^T (K = V (x) U): one Dim x Dim block on the
+  /// (i, i) pairs and a 2 x 2 block per (i, j), (j, i); those small blocks are projected instead
+  /// of the Dim^2 x Dim^2 matrix. Where the block is not of that shape (fibre terms, or an
+  /// off-block entry above 1e-9 of the norm) the full eigen-decomposition is used: the oracle
+  /// the test compares against (full_psd_projection).
+  static Block project_psd(const Block& He, const Mat<Dim>& F) {
+    if constexpr (!EnergyPack::has_fibre_terms) {
+      Mat<Dim> U, V;
+      Vec<Dim> sigma;
+      svd_rv<double, Dim>(F, U, sigma, V);
+      Block K;
+      for (int a = 0; a < Dim; ++a)
+        for (int b = 0; b < Dim; ++b) K.template block<Dim, Dim>(Dim * a, Dim * b) = V(a, b) * U;
+      const Block M = K.transpose() * He * K;
+      auto id = [](int i, int j) { return i + Dim * j; };  // vec index of e_i e_j^T
+      Block P = Block::Zero(), covered = Block::Zero();
+      Mat<Dim> S;
+      for (int i = 0; i < Dim; ++i)
+        for (int k = 0; k < Dim; ++k) S(i, k) = M(id(i, i), id(k, k));
+      Eigen::SelfAdjointEigenSolver<Mat<Dim>> es(S);
+      const Mat<Dim> Sp = es.eigenvectors() * es.eigenvalues().cwiseMax(0.0).asDiagonal() *
+                          es.eigenvectors().transpose();
+      for (int i = 0; i < Dim; ++i)
+        for (int k = 0; k < Dim; ++k) {
+          P(id(i, i), id(k, k)) = Sp(i, k);
+          covered(id(i, i), id(k, k)) = 1;
+        }
+      for (int i = 0; i < Dim; ++i)
+        for (int j = i + 1; j < Dim; ++j) {
+          const int a = id(i, j), b = id(j, i);
+          Eigen::Matrix2d T;
+          T << M(a, a), M(a, b), M(b, a), M(b, b);
+          Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> e2(T);
+          const Eigen::Matrix2d Tp = e2.eigenvectors() *
+                                     e2.eigenvalues().cwiseMax(0.0).asDiagonal() *
+                                     e2.eigenvectors().transpose();
+          P(a, a) = Tp(0, 0), P(a, b) = Tp(0, 1), P(b, a) = Tp(1, 0), P(b, b) = Tp(1, 1);
+          covered(a, a) = covered(a, b) = covered(b, a) = covered(b, b) = 1;
+        }
+      const double off = (M.array() * (1.0 - covered.array())).matrix().norm();
+      if (off <= 1e-9 * M.norm()) return K * P * K.transpose();
+    }
+    return full_psd_projection(He);
+  }
+  /// The PSD projection by the full Dim^2 x Dim^2 eigen-decomposition (the slow oracle).
+  static Block full_psd_projection(const Block& He) {
+    Eigen::SelfAdjointEigenSolver<Block> es(He);
+    return es.eigenvectors() * es.eigenvalues().cwiseMax(0.0).asDiagonal() *
+           es.eigenvectors().transpose();
   }
 
   /// The F-space operator of the element's A block: w_iso I + k_fibre (m m^T (x) I).
