@@ -67,7 +67,8 @@ inline bool parse_solver_method(const std::string& s, SolverMethod& out) {
 /// imbalance of the step's first iterate (inertial plus elastic forces, independent of where
 /// the body is) and f_w = 9.81 m/s^2 ||m|| the norm of the body's weight under standard
 /// gravity (an absolute floor that keeps the test defined for a body at rest: f0 = 0 there
-/// and the first iterate is the answer).
+/// and the first iterate is the answer). The solver adds to `floor` the round-off of the
+/// gradient itself (8 eps_mach times the norm of the element forces that cancel in it).
 struct GradientTest {
   double eps_rel = 1e-6, eps_abs = 1e-8;
   double f0 = 0, floor = 0;
@@ -346,21 +347,30 @@ inline std::string not_converged(const char* what, const MethodResult& r,
 }
 }  // namespace detail
 
-/// \brief Newton-Krylov on Phi: outer Newton steps with per-element PSD-projected Hessians,
-/// inner deflated PCG preconditioned by A^-1 (the persistent factor; no refactorization), the
-/// forcing term eta = min(forcing_max, sqrt(||g|| / f0)) (superlinear), Armijo backtracking.
-/// q holds the first iterate (Dirichlet values imposed) on entry and the answer on exit.
-template <class Potential>
-MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
-                           const std::vector<std::vector<Index>>& regions,
-                           const MethodOptions& o, int max_iterations) {
+namespace detail {
+/// The outer loop both Newton methods share: per-element Hessian blocks at q, a direction from
+/// `direction(q, g, gn, tight, d)` (tight = false first; it returns true when a tighter solve
+/// than the one it just made exists), Armijo line search, one tight retry when the line search
+/// fails, the gradient test, the stall watch. A direction that does not descend (or is not
+/// finite) is replaced by the A^-1-preconditioned steepest descent direction.
+template <class Potential, class Direction>
+MethodResult newton_loop(Potential& P, VectorX& q, GradientTest& test, const MethodOptions& o,
+                         int max_iterations, Direction&& direction) {
   MethodResult res;
-  VectorX g, b;
+  VectorX g, b, d;
   Index bad = -1;
   double gn = 0, phi = 0;
-  if (!detail::start_method(P, q, test, res, g, b, gn, phi)) return res;
-  detail::StallWatch watch;
+  if (!start_method(P, q, test, res, g, b, gn, phi)) return res;
+  StallWatch watch;
   bool stalled = false;
+  auto descend = [&](bool tight) {
+    const bool can_tighten = direction(q, g, gn, tight, res, d);
+    if (!d.allFinite() || !(g.dot(d) < 0)) {
+      P.precondition(g, d);
+      d = -d;
+    }
+    return can_tighten;
+  };
   while (true) {
     res.gradient_ratio = test.ratio(gn);
     if (test.passed(gn)) {
@@ -370,33 +380,13 @@ MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
     if ((stalled = watch.stalled(gn))) break;
     if (res.iterations >= max_iterations) break;
     res.projected_elements = P.update_hessian(q);
-    MatrixX Z(q.size(), 0), HZ(q.size(), 0);
-    if (o.deflation && !regions.empty()) {
-      Z = deflation_basis(P, regions, q);
-      HZ.resize(q.size(), Z.cols());
-      VectorX col;
-      for (Index j = 0; j < Z.cols(); ++j) {
-        P.hessian_vector(Z.col(j), col);
-        HZ.col(j) = col;
-      }
-    }
-    Eigen::LDLT<MatrixX> E;
-    if (Z.cols()) E.compute(MatrixX(Z.transpose().lazyProduct(HZ)));
-    double eta = std::min(o.forcing_max, std::sqrt(gn / std::max(test.f0, 1e-300)));
-    VectorX d;
-    const VectorX rhs = -g;
-    auto solve = [&](double tol) {
-      res.inner_iterations += 1 + deflated_pcg(P, Z, HZ, E, rhs, d, tol, o.max_cg_iterations);
-      if (!d.allFinite() || !(g.dot(d) < 0)) P.precondition(rhs, d);  // steepest descent in A
-    };
-    solve(eta);
+    const bool can_tighten = descend(false);
     ++res.iterations;
-    bool moved = detail::line_search(P, q, g, b, phi, d, o.max_line_search, &bad);
-    if (!moved && eta > 1e-6) {
-      // A loose inner solve can fail to reduce ||g|| where Armijo cannot decide: solve tightly.
-      eta = 1e-6;
-      solve(eta);
-      moved = detail::line_search(P, q, g, b, phi, d, o.max_line_search, &bad);
+    bool moved = line_search(P, q, g, b, phi, d, o.max_line_search, &bad);
+    // A loose inner solve can fail to reduce ||g|| where Armijo cannot decide: solve tightly.
+    if (!moved && can_tighten) {
+      descend(true);
+      moved = line_search(P, q, g, b, phi, d, o.max_line_search, &bad);
     }
     if (!moved) {
       std::ostringstream os;
@@ -407,8 +397,45 @@ MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
     }
     gn = g.norm();
   }
-  res.message = detail::not_converged("Newton", res, watch, stalled);
+  res.message = not_converged("Newton", res, watch, stalled);
   return res;
+}
+}  // namespace detail
+
+/// \brief Newton-Krylov on Phi: outer Newton steps with per-element PSD-projected Hessians,
+/// inner deflated PCG preconditioned by A^-1 (the persistent factor; no refactorization), the
+/// forcing term eta = min(forcing_max, sqrt(||g|| / f0)) (superlinear), Armijo backtracking
+/// (detail::newton_loop). q holds the first iterate (Dirichlet values imposed) on entry and the
+/// answer on exit.
+template <class Potential>
+MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
+                           const std::vector<std::vector<Index>>& regions,
+                           const MethodOptions& o, int max_iterations) {
+  constexpr double kTight = 1e-6;
+  MatrixX Z, HZ;
+  Eigen::LDLT<MatrixX> E;
+  auto direction = [&](const VectorX& x, const VectorX& g, double gn, bool tight,
+                       MethodResult& res, VectorX& d) {
+    if (!tight) {  // the coarse space at this iterate
+      Z.resize(x.size(), 0);
+      HZ.resize(x.size(), 0);
+      if (o.deflation && !regions.empty()) {
+        Z = deflation_basis(P, regions, x);
+        HZ.resize(x.size(), Z.cols());
+        VectorX col;
+        for (Index j = 0; j < Z.cols(); ++j) {
+          P.hessian_vector(Z.col(j), col);
+          HZ.col(j) = col;
+        }
+      }
+      if (Z.cols()) E.compute(MatrixX(Z.transpose().lazyProduct(HZ)));
+    }
+    const double eta =
+        tight ? kTight : std::min(o.forcing_max, std::sqrt(gn / std::max(test.f0, 1e-300)));
+    res.inner_iterations += 1 + deflated_pcg(P, Z, HZ, E, VectorX(-g), d, eta, o.max_cg_iterations);
+    return eta > kTight;
+  };
+  return detail::newton_loop(P, q, test, o, max_iterations, direction);
 }
 
 /// \brief L-BFGS on Phi with H0^-1 = A^-1 (two-loop recursion), Armijo backtracking, the
@@ -523,17 +550,12 @@ SparseMatrix assemble_projected_hessian(Potential& P, const std::vector<Index>& 
 }
 
 /// \brief Direct Newton on Phi: the projected Hessian assembled and factored (CHOLMOD, pattern
-/// analysed once per step) every Newton step; Armijo backtracking. The same-model reference.
+/// analysed once per step) every Newton step (detail::newton_loop). The same-model reference.
+/// A factorization that fails (an indefinite assembled matrix should not occur after the
+/// projection) falls back to the preconditioned steepest descent direction of the loop.
 template <class Potential>
 MethodResult newton_direct(Potential& P, VectorX& q, GradientTest& test, const MethodOptions& o,
                            int max_iterations) {
-  MethodResult res;
-  VectorX g, b;
-  Index bad = -1;
-  double gn = 0, phi = 0;
-  if (!detail::start_method(P, q, test, res, g, b, gn, phi)) return res;
-  detail::StallWatch watch;
-  bool stalled = false;
   // Free DoF numbering.
   const Index n = q.size();
   VectorX ones = VectorX::Ones(n);
@@ -544,39 +566,24 @@ MethodResult newton_direct(Potential& P, VectorX& q, GradientTest& test, const M
     if (ones[i] != 0) free_index[i] = nf++;
   SparseFactor factor;
   bool analysed = false;
-  while (true) {
-    res.gradient_ratio = test.ratio(gn);
-    if (test.passed(gn)) {
-      res.converged = true;
-      return res;
-    }
-    if ((stalled = watch.stalled(gn))) break;
-    if (res.iterations >= max_iterations || nf == 0) break;
-    res.projected_elements = P.update_hessian(q);
+  auto direction = [&](const VectorX&, const VectorX& g, double, bool, MethodResult& res,
+                       VectorX& d) {
+    d.setZero(n);
+    if (nf == 0) return false;
     const SparseMatrix H = assemble_projected_hessian(P, free_index, nf);
     if (!analysed) factor.analyze_pattern(H), analysed = true;
     factor.factorize(H);
+    if (factor.info() != FactorStatus::Success) return false;
     VectorX gf(nf);
     for (Index i = 0; i < n; ++i)
       if (free_index[i] >= 0) gf[free_index[i]] = g[i];
     const MatrixX xf = factor.solve(MatrixX(-gf));
     ++res.inner_iterations;
-    VectorX d = VectorX::Zero(n);
     for (Index i = 0; i < n; ++i)
       if (free_index[i] >= 0) d[i] = xf(free_index[i], 0);
-    if (!d.allFinite() || !(g.dot(d) < 0)) P.precondition(-g, d);
-    ++res.iterations;
-    if (!detail::line_search(P, q, g, b, phi, d, o.max_line_search, &bad)) {
-      std::ostringstream os;
-      os << "line search failed at Newton iteration " << res.iterations << " (gradient ratio "
-         << test.ratio(gn) << ")";
-      res.message = os.str();
-      return res;
-    }
-    gn = g.norm();
-  }
-  res.message = detail::not_converged("Newton", res, watch, stalled);
-  return res;
+    return false;  // exact already: no tighter solve
+  };
+  return detail::newton_loop(P, q, test, o, max_iterations, direction);
 }
 
 }  // namespace diffphd

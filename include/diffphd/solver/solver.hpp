@@ -748,7 +748,6 @@ class Solver {
     }
     GradientTest test = gradient_test();
     MethodResult r;
-    const Vector q0 = q;
     switch (rep.method) {
       case SolverMethod::NewtonKrylov:
         r = newton_krylov(potential, q, test, deflation_regions(), options_.newton,
@@ -775,7 +774,6 @@ class Solver {
     rep.status = r.converged ? StepStatus::Converged : StepStatus::MaxIterations;
     rep.message = r.message;
     q_prev = q;
-    (void)q0;
     return true;
   }
 
