@@ -36,7 +36,7 @@ Vec<3> center_of_mass(const VertexMatrix<3>& x, const VectorX& m) {
 
 TEST_CASE("scene -> solver options: gate, overrides, contrast exponents", "[scene][solver]") {
   io::SceneSpec s = io::load_scene(kData + "good_small.json");
-  CHECK(scene_solver_options(s, 3).gate_scale == GateScale::Paper);
+  CHECK(scene_solver_options(s, 3).gate_scale == GateScale::Gradient);  // the default
   s.solver.gate = io::Gate::Gradient;
   CHECK(scene_solver_options(s, 3).gate_scale == GateScale::Gradient);
   CHECK(scene_solver_options(s, 3).method == SolverMethod::Auto);
@@ -94,7 +94,9 @@ TEST_CASE("shipped bunny_tumble: the centre of mass falls exactly as x0 + v0 t +
   CHECK(v0.isApprox(Vec<3>(0.5, 3.0, 0.0), 1e-12));  // the scene's linear velocity
   const Vec<3> g(0, -9.81, 0);
   const double h = scene.h;
-  const int steps = scene.output.frames * scene.output.substeps;
+  // The closed form holds at every step: the first 40 of the scene's 120 are enough (the whole
+  // scene with Newton-Krylov takes ~15 s alone on 2 cores, ~40 s beside the rest of the suite).
+  const int steps = std::min(40, scene.output.frames * scene.output.substeps);
   double min_det = 1e300, worst = 0;
   int iterations = 0;
   for (int n = 1; n <= steps; ++n) {
@@ -158,12 +160,15 @@ TEST_CASE("shipped cantilever_axial: static elongation against the closed form",
   CHECK(soft_strain / stiff_strain == Approx(C).epsilon(0.05));
 }
 
-TEST_CASE("shipped plant_swing: every step converges, no inversion, the swing decays",
-          "[scene][physics]") {
+namespace {
+/// The shipped plant_swing scene for its first `frames` frames (0: the whole scene), every step
+/// converged, no inverted element, the clamped base in place. Returns the peak kinetic energy
+/// and the peak over the last second.
+std::pair<double, double> run_plant_swing(int frames) {
   const io::SceneSpec scene = io::load_scene(kScenes + "plant_swing.json");
   SceneSimulation<3, Energies<Corotated, Volume>> run(scene);
   REQUIRE(scene.solver.alpha > 0);
-  const int steps = scene.output.frames * scene.output.substeps;
+  const int steps = (frames > 0 ? frames : scene.output.frames) * scene.output.substeps;
   const auto base = io::select_vertices(scene.fixed[0].vertices, run.mesh());
   double ke_max = 0, ke_last_second = 0, min_det = 1e300;
   for (int n = 1; n <= steps; ++n) {
@@ -178,9 +183,25 @@ TEST_CASE("shipped plant_swing: every step converges, no inversion, the swing de
   }
   for (Index v : base)
     CHECK((run.solver().positions().row(v) - run.mesh().rest_positions().row(v)).norm() == 0.0);
-  WARN("plant_swing: peak kinetic energy " << ke_max << " J, peak over the last second "
-                                           << ke_last_second << " J, min det F " << min_det);
-  CHECK(ke_last_second < 0.5 * ke_max);
+  WARN("plant_swing, " << steps << " steps: peak kinetic energy " << ke_max
+                       << " J, peak over the last second " << ke_last_second << " J, min det F "
+                       << min_det);
+  return {ke_max, ke_last_second};
+}
+}  // namespace
+
+TEST_CASE("shipped plant_swing: the push and the first swing converge, no inversion",
+          "[scene][physics]") {
+  // The push lasts 15 frames; 30 frames take the plant through it and into the swing (the whole
+  // 180-frame scene, with the decay check, is the [.slow] case below: ~60 s on 2 cores).
+  const auto ke = run_plant_swing(30);
+  CHECK(ke.first > 0);
+}
+
+TEST_CASE("shipped plant_swing: every step converges, no inversion, the swing decays",
+          "[scene][physics][.slow]") {
+  const auto ke = run_plant_swing(0);
+  CHECK(ke.second < 0.5 * ke.first);
 }
 
 TEST_CASE("NewtonSceneSimulation: cantilever_axial reaches the nominal linear-elastic elongation",

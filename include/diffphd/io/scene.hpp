@@ -379,7 +379,7 @@ struct SolverSpec {
   double anderson_reset = 10.0;  ///< discard the AA history when |gamma| exceeds this (> 0)
   double eps_rel = 1e-4;     ///< relative tolerance of the convergence test, > 0
   double eps_abs = 1e-8;     ///< absolute tolerance of the convergence test, >= 0
-  Gate gate = Gate::Paper;   ///< the convergence test of pd (the other methods use the gradient)
+  Gate gate = Gate::Gradient;  ///< the convergence test of pd (the other methods use the gradient)
   int max_iterations = 200;  ///< outer iterations per step (PD iterations, Newton steps), >= 1
   std::string method = "auto";  ///< one of method_names()
   double alpha = 0;          ///< mass damping alpha, 1/s, >= 0 (eq. 31)

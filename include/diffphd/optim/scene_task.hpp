@@ -211,6 +211,7 @@ class SceneTask {
     o.max_iterations = t.max_solver_iterations;
     o.anderson = t.anderson;
     o.gate = t.gate;
+    o.method = t.method;
     return o;
   }
   static RolloutOptions rollout_options(const TaskSpec& t) {
@@ -520,7 +521,7 @@ inline const std::vector<std::string>& gradcheck_kinds() {
 
 /// \brief Compares the adjoint gradient of a `frames`-frame rollout of a scene, for one
 /// parameter kind, with central finite differences along `directions` random directions. The
-/// forward pass is converged to eps_rel (step-relative gate, no absolute floor) so that the
+/// forward pass is converged to eps_rel (gradient test, no absolute floor) so that the
 /// finite differences mean something; the loss is 0.5 |q - target|^2 over all vertices at the
 /// last frame (targets: rest positions plus 1% of the bounding box at random) plus 0.05 |v|^2.
 /// E and nu directions are constant per scene region (beta_e = beta0 mu_e / max mu is smooth
@@ -544,7 +545,7 @@ GradcheckResult gradcheck_scene(const io::SceneSpec& scene, const std::string& k
   ov.eps_rel = eps_rel;
   ov.max_iterations = 50000;
   ov.anderson = 5;
-  ov.gate = GateScale::StepRelative;
+  ov.gate = GateScale::Gradient;
   SceneSimulation<Dim, Energy> runner(scene, ov);
   SolverT& s = runner.solver();
   SolverOptions base_opt = s.options();

@@ -88,8 +88,9 @@ struct TaskSpec {
   unsigned seed = 1;
   // forward solver overrides
   double eps_rel = 1e-8;
-  double eps_abs = 1e-10;  ///< absolute floor of the gate (m)
-  GateScale gate = GateScale::StepRelative;
+  double eps_abs = 1e-10;  ///< absolute floor of the convergence test (gradient test: a fraction of the weight)
+  GateScale gate = GateScale::Gradient;  ///< convergence test of pd steps (docs/solver.md)
+  SolverMethod method = SolverMethod::Auto;  ///< forward method (solver.method)
   int max_solver_iterations = 5000;
   int anderson = -1;  ///< -1: auto (m = 1 on heterogeneous meshes)
   // backward
@@ -334,19 +335,29 @@ inline TaskSpec load_task(const std::string& path) {
   }
   if (root.contains("solver")) {
     const json& j = root.at("solver");
-    p.expect_object(j, "solver", {"eps_rel", "eps_abs", "gate", "max_iterations", "anderson"});
+    p.expect_object(j, "solver",
+                    {"eps_rel", "eps_abs", "gate", "method", "max_iterations", "anderson"});
     t.eps_rel = p.number(j, "solver", "eps_rel", 1e-8);
     p.positive(t.eps_rel, "solver.eps_rel");
     t.eps_abs = p.number(j, "solver", "eps_abs", 1e-10);
     p.non_negative(t.eps_abs, "solver.eps_abs");
     if (j.contains("gate")) {
       const std::string g = p.string(j.at("gate"), "solver.gate");
-      if (g == "paper")
+      if (g == "gradient")
+        t.gate = GateScale::Gradient;
+      else if (g == "paper")
         t.gate = GateScale::Paper;
       else if (g == "step-relative")
         t.gate = GateScale::StepRelative;
       else
-        p.fail("solver.gate", "expected \"paper\" or \"step-relative\", found \"" + g + "\"");
+        p.fail("solver.gate", "expected \"gradient\", \"paper\" or \"step-relative\", found \"" +
+                                  g + "\"");
+    }
+    if (j.contains("method")) {
+      const std::string m = p.string(j.at("method"), "solver.method");
+      if (!parse_solver_method(m, t.method))
+        p.fail("solver.method", "expected \"auto\", \"pd\", \"newton-krylov\", \"lbfgs\" or "
+                                "\"newton-direct\", found \"" + m + "\"");
     }
     t.max_solver_iterations = static_cast<int>(p.integer(j, "solver", "max_iterations", 5000));
     p.at_least(t.max_solver_iterations, 1, "solver.max_iterations");
