@@ -11,6 +11,7 @@
 #include <set>
 #include <string>
 #include <vector>
+#include <unistd.h>  // getpid: per-process scratch folders
 
 #include <diffphd/io/plant.hpp>
 #include <diffphd/io/scene.hpp>
@@ -393,7 +394,7 @@ TEST_CASE("scene: mesh_region from a TetGen region attribute", "[scene]") {
 
 TEST_CASE("scene: every generator builds", "[scene]") {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / "diffphd_test_scene";
+  const fs::path dir = fs::temp_directory_path() / ("diffphd_test_scene_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   const std::vector<std::pair<std::string, Index>> meshes = {
       {R"({"generator": "box", "lo": [0, 0, 0], "hi": [1, 1, 2], "cells": [1, 1, 2]})", 12},
@@ -433,13 +434,19 @@ TEST_CASE("scene: every generator builds", "[scene]") {
 
 namespace {
 
+/// The scratch folder of the muscle scenes, one per process: CTest runs this file's cases as
+/// parallel processes, and one case's remove_muscle_scenes() removed another's file mid-test.
+std::string muscles_dir_name() {
+  return "diffphd_test_scene_muscles_" + std::to_string(::getpid());
+}
+
 /// A small scene (a 1 x 0.2 x 0.2 m box of 5 x 1 x 1 cells, 30 tets) with the given "muscles"
 /// and energy, written to a temporary file. Returns the file's path.
 std::string muscle_scene(const std::string& muscles,
                          const std::string& energy = "corotated+volume+muscle",
                          const std::string& name = "muscles") {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / "diffphd_test_scene_muscles";
+  const fs::path dir = fs::temp_directory_path() / muscles_dir_name();
   fs::create_directories(dir);
   const fs::path file = dir / (name + ".json");
   std::ofstream out(file);
@@ -453,8 +460,7 @@ std::string muscle_scene(const std::string& muscles,
 }
 
 void remove_muscle_scenes() {
-  std::filesystem::remove_all(std::filesystem::temp_directory_path() /
-                              "diffphd_test_scene_muscles");
+  std::filesystem::remove_all(std::filesystem::temp_directory_path() / muscles_dir_name());
 }
 
 }  // namespace

@@ -13,6 +13,7 @@
 #include <set>
 #include <string>
 #include <vector>
+#include <unistd.h>  // getpid: per-process scratch folders
 
 #include <diffphd/io/scene.hpp>
 
@@ -27,7 +28,8 @@ const std::string kScenes = std::string(DIFFPHD_SOURCE_DIR) + "/scenes/";
 const std::string kData = std::string(DIFFPHD_SOURCE_DIR) + "/tests/data/scenes/";
 
 fs::path temp_dir() {
-  const fs::path d = fs::temp_directory_path() / "diffphd_test_scene_contact";
+  // One folder per process: CTest runs the cases of this file as parallel processes.
+  const fs::path d = fs::temp_directory_path() / ("diffphd_test_scene_contact_" + std::to_string(::getpid()));
   fs::create_directories(d);
   return d;
 }
