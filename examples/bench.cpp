@@ -188,8 +188,7 @@ int cmd_bench(const BenchOptions& opt) {
         } else {
           SceneOverrides o;
           o.eps_rel = tol;
-          if (opt.step_relative_gate)
-            o.gate = *opt.step_relative_gate ? GateScale::StepRelative : GateScale::Paper;
+          o.gate = opt.gate;
           if (m == "pd") {
             o.anderson = 0;
             o.routing = io::Routing::Uniform;

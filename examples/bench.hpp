@@ -4,6 +4,10 @@
 #include <string>
 #include <vector>
 
+namespace diffphd {
+enum class GateScale;  // solver/solver.hpp
+}
+
 namespace diffphd::cli {
 
 struct BenchOptions {
@@ -17,7 +21,7 @@ struct BenchOptions {
   double reference_tolerance = 1e-10;  ///< Newton reference gradient tolerance
   double model_reference_eps = 1e-10;  ///< gradient tolerance of the same-model direct-Newton references
   int model_reference_max_iterations = 20000;
-  std::optional<bool> step_relative_gate;  ///< --gate for the PD methods (default: the scene's)
+  std::optional<GateScale> gate;  ///< --gate for the pd methods (default: the scene's)
   bool features = false;  ///< also the feature-cost runs (energies, damping, Anderson)
   bool progress = true;
 };

@@ -183,7 +183,9 @@ int main(int argc, char** argv) {
   auto* bench = app.add_subcommand(
       "bench", "Run methods on one scene against a converged Newton reference (results.csv)");
   bench->add_option("SCENE", bench_opt.scene_path, "Scene file (JSON)")->required();
-  bench->add_option("--methods", methods_csv, "Comma list of diffphd, pd, newton (default all)");
+  bench->add_option("--methods", methods_csv, "Comma list of diffphd (the scene's settings), pd (DiffPD-style baseline), newton "
+                    "(Neo-Hookean projected Newton), newton-krylov, lbfgs, pd-anderson (the scene's "
+                    "model by that method) (default diffphd,pd,newton)");
   bench->add_option("--tolerances", tolerances_csv,
                     "Comma list: eps_rel of the PD methods, gradient tolerance of Newton "
                     "(default 1e-2,1e-3,1e-4,1e-5)");
@@ -197,12 +199,15 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   bench
       ->add_option("--model-reference-eps", bench_opt.model_reference_eps,
-                   "eps_rel of the converged same-model PD references (default 1e-9)")
+                   "Gradient-test tolerance of the same-model references: direct Newton on the PD "
+                   "potential; on contact scenes a PD run at max(this, 1e-9) (default 1e-10)")
       ->check(CLI::PositiveNumber);
   std::string bench_gate;
   bench
-      ->add_option("--gate", bench_gate, "Dual-gate scale of the PD methods: paper | step-relative")
-      ->check(CLI::IsMember({"paper", "step-relative"}));
+      ->add_option("--gate", bench_gate,
+                   "Convergence test of the pd methods: gradient | paper | step-relative "
+                   "(default: the scene's)")
+      ->check(CLI::IsMember({"gradient", "paper", "step-relative"}));
   bench->add_flag("--features", bench_opt.features,
                   "Also the feature-cost runs: energies, damping, Anderson window");
   bench->add_flag("--no-progress", bench_no_progress, "No progress bar");
@@ -386,7 +391,8 @@ int main(int argc, char** argv) {
       if (!tolerances_csv.empty()) bench_opt.tolerances = numbers(tolerances_csv, "--tolerances");
       if (!contrasts_csv.empty()) bench_opt.contrasts = numbers(contrasts_csv, "--contrasts");
       bench_opt.frames = bench_frames;
-      if (!bench_gate.empty()) bench_opt.step_relative_gate = bench_gate == "step-relative";
+      diffphd::GateScale bg;
+      if (diffphd::parse_gate_scale(bench_gate, bg)) bench_opt.gate = bg;
       bench_opt.progress = !bench_no_progress;
       return diffphd::cli::cmd_bench(bench_opt);
     }
@@ -401,9 +407,8 @@ int main(int argc, char** argv) {
       if (routing == "stiffness-aware") opt.routing = diffphd::io::Routing::StiffnessAware;
       if (routing == "per-element-prox") opt.routing = diffphd::io::Routing::PerElementProx;
       if (routing == "uniform") opt.routing = diffphd::io::Routing::Uniform;
-      if (gate == "paper") opt.gate = diffphd::GateScale::Paper;
-      if (gate == "step-relative") opt.gate = diffphd::GateScale::StepRelative;
-      if (gate == "gradient") opt.gate = diffphd::GateScale::Gradient;
+      diffphd::GateScale g;
+      if (diffphd::parse_gate_scale(gate, g)) opt.gate = g;
       if (!method.empty()) {
         diffphd::SolverMethod m;
         diffphd::parse_solver_method(method, m);

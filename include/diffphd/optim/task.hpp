@@ -343,13 +343,7 @@ inline TaskSpec load_task(const std::string& path) {
     p.non_negative(t.eps_abs, "solver.eps_abs");
     if (j.contains("gate")) {
       const std::string g = p.string(j.at("gate"), "solver.gate");
-      if (g == "gradient")
-        t.gate = GateScale::Gradient;
-      else if (g == "paper")
-        t.gate = GateScale::Paper;
-      else if (g == "step-relative")
-        t.gate = GateScale::StepRelative;
-      else
+      if (!parse_gate_scale(g, t.gate))
         p.fail("solver.gate", "expected \"gradient\", \"paper\" or \"step-relative\", found \"" +
                                   g + "\"");
     }

@@ -100,6 +100,17 @@ inline const char* to_string(GateScale g) {
   return g == GateScale::Gradient ? "gradient" : g == GateScale::Paper ? "paper" : "step-relative";
 }
 
+/// Parses "gradient", "paper", "step-relative" (the names of to_string(GateScale)); false for
+/// anything else. Task files and the command line share it.
+inline bool parse_gate_scale(const std::string& s, GateScale& out) {
+  for (GateScale g : {GateScale::Gradient, GateScale::Paper, GateScale::StepRelative})
+    if (s == to_string(g)) {
+      out = g;
+      return true;
+    }
+  return false;
+}
+
 inline const char* to_string(InitialGuess g) {
   switch (g) {
     case InitialGuess::Inertial:
