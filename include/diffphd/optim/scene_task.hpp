@@ -769,6 +769,7 @@ struct BackwardBench {
   int unconverged_adjoints = 0, unconverged_forward = 0;
   int adjoint_fallbacks = 0;       ///< DeflatedPcg steps that fell back to GMRES
   double max_asymmetry = -1;       ///< DeflatedPcg: largest ||(K - K^T) x|| / ||K x||
+  std::vector<std::string> messages;  ///< the non-empty BackwardReport::message per step
   int indefinite_element_steps = 0;
   int tau_count[3] = {0, 0, 0};
   size_t cache_doubles = 0;
@@ -825,6 +826,7 @@ BackwardBench bench_backward(const io::SceneSpec& scene, const SceneOverrides& o
     b.max_adjoint_residual = std::max(b.max_adjoint_residual, r.residual);
     b.indefinite_element_steps += r.indefinite_elements;
     b.max_asymmetry = std::max(b.max_asymmetry, r.asymmetry);
+    if (!r.message.empty()) b.messages.push_back(r.message);
   }
   b.adjoint_fallbacks = g.adjoint_fallbacks;
   auto median = [](std::vector<double> v) {
