@@ -140,6 +140,8 @@ nlohmann::json bench_backward_energy(const io::SceneSpec& scene, const BenchBack
       j["max_adjoint_iterations"] = b.max_adjoint_iterations;
       j["max_adjoint_residual"] = b.max_adjoint_residual;
       j["unconverged_adjoints"] = b.unconverged_adjoints;
+      j["adjoint_fallbacks"] = b.adjoint_fallbacks;
+      j["max_asymmetry"] = b.max_asymmetry;
       j["unconverged_forward"] = b.unconverged_forward;
       j["indefinite_element_steps"] = b.indefinite_element_steps;
       j["tau_counts"] = {{"0", b.tau_count[0]}, {"0.5", b.tau_count[1]}, {"1", b.tau_count[2]}};

@@ -267,7 +267,8 @@ int main(int argc, char** argv) {
   bench_bw->add_option("SCENE", bb_scene, "Scene file (JSON)")->required();
   bench_bw->add_option("--frames", bb.frames, "Frames (default 10)")->check(CLI::PositiveNumber);
   bench_bw->add_option("--filters", bb_filters, "Comma list (default none,clamp,abs,trust-region)");
-  bench_bw->add_option("--methods", bb_methods, "Comma list of gmres, fixed-point (default gmres)");
+  bench_bw->add_option("--methods", bb_methods,
+                       "Comma list of gmres, fixed-point, deflated-pcg (alias pcg; default gmres)");
   bench_bw->add_option("--eps-rel", bb_eps, "Forward tolerance (default: the scene's)")
       ->check(CLI::PositiveNumber);
   bench_bw->add_option("--adjoint-tolerance", bb.tolerance, "Adjoint tolerance (default 1e-8)")
@@ -316,12 +317,11 @@ int main(int argc, char** argv) {
       };
       for (const auto& f : split(bb_filters)) bb.filters.push_back(parse_filter(f));
       for (const auto& m : split(bb_methods)) {
-        if (m == "gmres")
-          bb.methods.push_back(diffphd::AdjointMethod::Gmres);
-        else if (m == "fixed-point")
-          bb.methods.push_back(diffphd::AdjointMethod::FixedPoint);
-        else
-          throw diffphd::InputError("--methods: unknown method \"" + m + "\" (gmres, fixed-point)");
+        diffphd::AdjointMethod am;
+        if (!diffphd::parse_adjoint_method(m, am))
+          throw diffphd::InputError("--methods: unknown method \"" + m +
+                                    "\" (gmres, fixed-point, deflated-pcg)");
+        bb.methods.push_back(am);
       }
       if (bb.filters.empty() || bb.methods.empty())
         throw diffphd::InputError("--filters and --methods need at least one entry");
@@ -336,7 +336,7 @@ int main(int argc, char** argv) {
                "backward_over_forward,mean_forward_iterations,mean_adjoint_iterations,"
                "max_adjoint_iterations,max_adjoint_residual,unconverged_adjoints,"
                "unconverged_forward,indefinite_element_steps,tau_0,tau_half,tau_1,cache_"
-               "megabytes\n";
+               "megabytes,adjoint_fallbacks,max_asymmetry\n";
         for (const auto& r : rows)
           csv << r["scene"].get<std::string>() << "," << r["filter"].get<std::string>() << ","
               << r["method"].get<std::string>() << "," << r["steps"] << ","
@@ -346,7 +346,8 @@ int main(int argc, char** argv) {
               << r["max_adjoint_residual"] << "," << r["unconverged_adjoints"] << ","
               << r["unconverged_forward"] << "," << r["indefinite_element_steps"] << ","
               << r["tau_counts"]["0"] << "," << r["tau_counts"]["0.5"] << ","
-              << r["tau_counts"]["1"] << "," << r["cache_megabytes"] << "\n";
+              << r["tau_counts"]["1"] << "," << r["cache_megabytes"] << ","
+              << r["adjoint_fallbacks"] << "," << r["max_asymmetry"] << "\n";
       }
       if (bb_json) {
         std::cout << rows.dump() << "\n";
@@ -358,7 +359,10 @@ int main(int argc, char** argv) {
                     << r["backward_ms_per_step"].get<double>() << " ms/step (ratio "
                     << r["backward_over_forward"].get<double>() << "), adjoint iterations mean "
                     << r["mean_adjoint_iterations"].get<double>() << " max "
-                    << r["max_adjoint_iterations"] << "\n";
+                    << r["max_adjoint_iterations"] << ", residual max "
+                    << r["max_adjoint_residual"].get<double>() << ", unconverged "
+                    << r["unconverged_adjoints"] << ", fallbacks " << r["adjoint_fallbacks"]
+                    << "\n";
       }
       return 0;
     }

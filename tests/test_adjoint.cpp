@@ -50,6 +50,15 @@ struct Problem {
   FilterKind filter = FilterKind::TrustRegion;
   AdjointMethod method = AdjointMethod::Gmres;
   int checkpoint_every = 0;
+  double contrast = 10;  ///< E of the stiff slab over the soft one's (1e5 Pa)
+  bool require_converged = true;
+  /// The other backward options (filter and method come from the members above).
+  BackwardOptions backward = [] {
+    BackwardOptions b;
+    b.tolerance = 1e-13;
+    b.max_iterations = 5000;
+    return b;
+  }();
 
   Problem() {
     const Index nv = mesh.num_vertices();
@@ -74,9 +83,9 @@ struct Problem {
     Params<Dim> p;
     const Index nv = mesh.num_vertices(), ne = mesh.num_elements();
     p.materials = MaterialField(ne, Material{1e5, nu, 1000});
-    p.materials.assign_slab(mesh, 0, 1.0 / 3, 2.0 / 3, Material{1e6, nu, 1000, 1});
+    p.materials.assign_slab(mesh, 0, 1.0 / 3, 2.0 / 3, Material{1e5 * contrast, nu, 1000, 1});
     p.materials.assign_slab(mesh, 0, 2.0 / 3, 1.0, Material{3e5, nu, 1000, 2});
-    p.beta0 = 0.002 * 1e6;
+    p.beta0 = 0.002 * 1e5 * contrast;
     std::mt19937 rng(3);
     std::uniform_real_distribution<double> u(-1, 1);
     p.controls.q0 = mesh.rest_positions();
@@ -131,10 +140,10 @@ struct Problem {
     RolloutOptions ro;
     ro.steps = steps;
     ro.checkpoint_every = checkpoint_every;
+    ro.require_converged = require_converged;
+    ro.backward = backward;
     ro.backward.filter = filter;
     ro.backward.method = method;
-    ro.backward.tolerance = 1e-13;
-    ro.backward.max_iterations = 5000;
     Rollout<Dim, E> roll(sim, ro);
     auto L = [this](int f, const VertexMatrix<Dim>& q, const VertexMatrix<Dim>& v,
                     VertexMatrix<Dim>* dq, VertexMatrix<Dim>* dv) { return loss(f, q, v, dq, dv); };
@@ -620,4 +629,199 @@ TEST_CASE("Rollout with a user (AD) density: state gradients exact, material gra
   const double an = (g.dv0.array() * d.array()).sum();
   INFO("AD density, v0 direction: adjoint " << an << ", FD " << fd);
   CHECK(std::abs(an - fd) <= 1e-5 * std::abs(fd));
+}
+
+namespace {
+
+/// The adjoint solutions mu_t (= dL/df_t) of a rollout under GMRES and deflated PCG, both at
+/// the problem's tolerance: largest relative difference over the steps, the PCG reports.
+template <int Dim, class E>
+double pcg_gmres_difference(Problem<Dim, E>& prob, int* pcg_iterations, int* gmres_iterations,
+                            int* fallbacks, double* asymmetry) {
+  const Params<Dim> base = prob.initial();
+  RolloutGradient<Dim> gm, pc;
+  prob.method = AdjointMethod::Gmres;
+  prob.evaluate(base, &gm);
+  prob.method = AdjointMethod::DeflatedPcg;
+  prob.evaluate(base, &pc);
+  double worst = 0;
+  *pcg_iterations = *gmres_iterations = *fallbacks = 0;
+  *asymmetry = 0;
+  for (int i = 0; i < prob.steps; ++i) {
+    CHECK(gm.steps[i].converged);
+    CHECK(pc.steps[i].converged);
+    *pcg_iterations += pc.steps[i].iterations;
+    *gmres_iterations += gm.steps[i].iterations;
+    *fallbacks += pc.steps[i].fallback;
+    *asymmetry = std::max(*asymmetry, pc.steps[i].asymmetry);
+    CHECK(gm.steps[i].asymmetry == -1);  // measured by DeflatedPcg only
+    const double n = gm.dforces[i].norm();
+    REQUIRE(n > 0);
+    worst = std::max(worst, (pc.dforces[i] - gm.dforces[i]).norm() / n);
+  }
+  CHECK(pc.adjoint_fallbacks == *fallbacks);
+  // The routed gradients follow.
+  CHECK((pc.dv0 - gm.dv0).norm() <= 1e-8 * gm.dv0.norm());
+  CHECK((pc.material.d_youngs - gm.material.d_youngs).norm() <=
+        1e-8 * gm.material.d_youngs.norm());
+  return worst;
+}
+
+template <int Dim, class E>
+void check_pcg_agrees(double contrast) {
+  Problem<Dim, E> prob;
+  prob.contrast = contrast;
+  // At 1e4x the residual's round-off floor is near 1e-12 (cond H ~ 1e5; GMRES does not reach
+  // 1e-12 on the 3D bar within 5000 iterations): 1e-10 there.
+  prob.backward.tolerance = contrast > 100 ? 1e-10 : 1e-12;
+  int it_pcg = 0, it_gm = 0, fb = 0;
+  double asym = 0;
+  const double diff = pcg_gmres_difference(prob, &it_pcg, &it_gm, &fb, &asym);
+  INFO(Dim << "D, contrast " << contrast << ": max_t |mu_pcg - mu_gmres| / |mu_gmres| = " << diff
+           << "; iterations over " << prob.steps << " steps: PCG " << it_pcg << ", GMRES "
+           << it_gm << "; fallbacks " << fb << "; asymmetry " << asym);
+  CHECK(diff <= 1e-8);
+  CHECK(fb == 0);  // SPD and above the round-off floor: CG alone
+  CHECK(asym >= 0);
+  CHECK(asym <= 1e-12);  // K is the Hessian of the PD energy: symmetric up to round-off
+}
+
+}  // namespace
+
+TEST_CASE("Deflated PCG and GMRES adjoints agree: 3D corotated+volume, 10x and 1e4x contrast",
+          "[adjoint][pcg]") {
+  check_pcg_agrees<3, Energies<Corotated, Volume>>(10);
+  check_pcg_agrees<3, Energies<Corotated, Volume>>(1e4);
+}
+
+TEST_CASE("Deflated PCG and GMRES adjoints agree: 2D corotated+volume, 10x and 1e4x contrast",
+          "[adjoint][pcg]") {
+  check_pcg_agrees<2, Energies<Corotated, Volume>>(10);
+  check_pcg_agrees<2, Energies<Corotated, Volume>>(1e4);
+}
+
+TEST_CASE("Deflated PCG and GMRES adjoints agree: 3D muscles, 10x and 1e4x contrast",
+          "[adjoint][pcg]") {
+  check_pcg_agrees<3, Energies<Corotated, Volume, Muscle>>(10);
+  check_pcg_agrees<3, Energies<Corotated, Volume, Muscle>>(1e4);
+}
+
+TEST_CASE("Rollout gradient with the deflated-PCG adjoint matches central FD, 3D, 10x contrast",
+          "[adjoint][pcg]") {
+  Problem<3, Energies<Corotated, Volume>> prob;
+  prob.method = AdjointMethod::DeflatedPcg;
+  check_all_kinds(prob);
+}
+
+TEST_CASE("Deflated PCG adjoint: at its iteration cap it falls back to GMRES (same answer)",
+          "[adjoint][pcg]") {
+  Problem<3, Energies<Corotated, Volume>> prob;
+  prob.backward.tolerance = 1e-12;
+  prob.backward.pcg_max_iterations = 2;
+  for (bool warm : {false, true}) {
+    prob.backward.fallback_warm_start = warm;
+    int it_pcg = 0, it_gm = 0, fb = 0;
+    double asym = 0;
+    const double diff = pcg_gmres_difference(prob, &it_pcg, &it_gm, &fb, &asym);
+    INFO((warm ? "warm" : "cold") << " GMRES restart: max_t |mu - mu_gmres| / |mu_gmres| = "
+                                  << diff << ", fallbacks " << fb << ", iterations " << it_pcg);
+    CHECK(fb == prob.steps);
+    CHECK(diff <= 1e-8);
+  }
+}
+
+TEST_CASE(
+    "Deflated PCG adjoint: an indefinite Hessian (compressed corotated state) falls back to "
+    "GMRES and gets GMRES's answer",
+    "[adjoint][pcg]") {
+  // A slender 2D strip, light (density 1) and a long step (h = 0.1), its step's answer set to
+  // 0.6 x the rest shape: every corotated element has stretches 0.6, where I - dR/dF has the
+  // eigenvalue 1 - 2 / 1.2 < 0 on its rotation modes, so A - K (bending is nearly rotation) is
+  // indefinite and CG cannot solve it.
+  using E = Energies<Corotated, Volume>;
+  const SimplicialMesh<2> mesh =
+      make_rectangle(Vec<2>(0, 0), Vec<2>(1.0, 0.1), Eigen::Vector2i(10, 1));
+  const Index nv = mesh.num_vertices();
+  SolverOptions o;
+  o.h = 0.1;
+  Solver<2, E> sim(mesh, MaterialField(mesh.num_elements(), Material{1e5, 0.3, 1}), o);
+  std::vector<Index> fixed;
+  for (Index v = 0; v < nv; ++v)
+    if (mesh.rest_positions()(v, 0) < 1e-9) fixed.push_back(v);
+  sim.fix_vertices(fixed);
+  StepRecord<2> rec;
+  rec.q = mesh.rest_positions();
+  rec.v = VertexMatrix<2>::Zero(nv, 2);
+  rec.f_ext = rec.v;
+  const VertexMatrix<2> qs = 0.6 * mesh.rest_positions();
+  rec.q_next = Eigen::Map<const VectorX>(qs.data(), qs.size());
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  VertexMatrix<2> qbar(nv, 2), vbar = VertexMatrix<2>::Zero(nv, 2);
+  for (Index i = 0; i < qbar.size(); ++i) qbar.data()[i] = u(rng);
+  BackwardOptions bo;
+  bo.filter = FilterKind::None;
+  bo.tolerance = 1e-11;
+  bo.max_iterations = 5000;
+  StepAdjoint<2, E> adj(sim, bo);
+  StepAdjoint<2, E>::Output gm, pc;
+  const BackwardReport rg = adj.backward(rec, qbar, vbar, gm);
+  bo.method = AdjointMethod::DeflatedPcg;
+  adj.set_options(bo);
+  const BackwardReport rp = adj.backward(rec, qbar, vbar, pc);
+  INFO("GMRES " << rg.iterations << " iterations (residual " << rg.residual << "); PCG "
+                << rp.pcg_iterations << " CG + " << rp.iterations - rp.pcg_iterations
+                << " GMRES iterations, residual " << rp.residual << ": " << rp.message);
+  REQUIRE(rg.converged);
+  CHECK(rp.converged);
+  CHECK(rp.fallback == 1);
+  // Seen by CG along a search direction or already in the coarse matrix Z^T H Z.
+  CHECK((rp.message.find("non-positive curvature") != std::string::npos ||
+         rp.message.find("coarse matrix") != std::string::npos));
+  CHECK((pc.df - gm.df).norm() <= 1e-8 * gm.df.norm());
+  CHECK((pc.dq - gm.dq).norm() <= 1e-8 * gm.dq.norm());
+}
+
+TEST_CASE("parse_adjoint_method: names and the pcg alias", "[adjoint][pcg]") {
+  AdjointMethod m = AdjointMethod::Gmres;
+  CHECK(parse_adjoint_method("pcg", m));
+  CHECK(m == AdjointMethod::DeflatedPcg);
+  CHECK(parse_adjoint_method("fixed-point", m));
+  CHECK(m == AdjointMethod::FixedPoint);
+  CHECK(parse_adjoint_method("deflated-pcg", m));
+  CHECK(m == AdjointMethod::DeflatedPcg);
+  CHECK(parse_adjoint_method("gmres", m));
+  CHECK(m == AdjointMethod::Gmres);
+  CHECK_FALSE(parse_adjoint_method("cg", m));
+  CHECK(std::string(to_string(AdjointMethod::DeflatedPcg)) == "deflated-pcg");
+}
+
+
+TEST_CASE(
+    "Deflated PCG adjoint at its round-off floor (1e-12, 1e4x): CG stops on the stall, keeps "
+    "its best iterate and GMRES finishes from it",
+    "[adjoint][pcg]") {
+  // Measured without the stall stop: 2D bar, 1e4x, eig(A^-1 H) in [0.082, 1]; undeflated CG
+  // stops after 29 iterations with a true residual of 2-6e-12, deflated CG runs on to its
+  // 500-iteration cap and ends with a residual of 1e4-1e6 (worse than zero).
+  Problem<2, Energies<Corotated, Volume>> prob;
+  prob.contrast = 1e4;
+  prob.backward.tolerance = 1e-12;
+  const Params<2> base = prob.initial();
+  RolloutGradient<2> gm, pc;
+  prob.method = AdjointMethod::Gmres;
+  prob.evaluate(base, &gm);
+  prob.method = AdjointMethod::DeflatedPcg;
+  prob.evaluate(base, &pc);
+  for (int i = 0; i < prob.steps; ++i) {
+    const BackwardReport& r = pc.steps[i];
+    INFO("step " << i << ": CG " << r.pcg_iterations << ", total " << r.iterations
+                 << " (GMRES alone " << gm.steps[i].iterations << "), residual " << r.residual
+                 << ", fallback " << r.fallback << ": " << r.message);
+    CHECK(gm.steps[i].converged);
+    CHECK(r.converged);
+    CHECK(r.pcg_iterations <= 100);
+    CHECK(r.iterations <= 2 * gm.steps[i].iterations + 60);
+    CHECK((pc.dforces[i] - gm.dforces[i]).norm() <= 1e-8 * gm.dforces[i].norm());
+  }
 }

@@ -767,6 +767,9 @@ struct BackwardBench {
   int max_adjoint_iterations = 0;
   double max_adjoint_residual = 0;
   int unconverged_adjoints = 0, unconverged_forward = 0;
+  int adjoint_fallbacks = 0;       ///< DeflatedPcg steps that fell back to GMRES
+  double max_asymmetry = -1;       ///< DeflatedPcg: largest ||(K - K^T) x|| / ||K x||
+  std::vector<std::string> messages;  ///< the non-empty BackwardReport::message per step
   int indefinite_element_steps = 0;
   int tau_count[3] = {0, 0, 0};
   size_t cache_doubles = 0;
@@ -822,7 +825,10 @@ BackwardBench bench_backward(const io::SceneSpec& scene, const SceneOverrides& o
     b.max_adjoint_iterations = std::max(b.max_adjoint_iterations, r.iterations);
     b.max_adjoint_residual = std::max(b.max_adjoint_residual, r.residual);
     b.indefinite_element_steps += r.indefinite_elements;
+    b.max_asymmetry = std::max(b.max_asymmetry, r.asymmetry);
+    if (!r.message.empty()) b.messages.push_back(r.message);
   }
+  b.adjoint_fallbacks = g.adjoint_fallbacks;
   auto median = [](std::vector<double> v) {
     if (v.empty()) return 0.0;
     std::sort(v.begin(), v.end());

@@ -374,12 +374,10 @@ inline TaskSpec load_task(const std::string& path) {
     }
     if (j.contains("method")) {
       const std::string m = p.string(j.at("method"), "backward.method");
-      if (m == "gmres")
-        t.backward.method = AdjointMethod::Gmres;
-      else if (m == "fixed-point")
-        t.backward.method = AdjointMethod::FixedPoint;
-      else
-        p.fail("backward.method", "expected \"gmres\" or \"fixed-point\", found \"" + m + "\"");
+      if (!parse_adjoint_method(m, t.backward.method))
+        p.fail("backward.method",
+               "expected \"gmres\", \"fixed-point\" or \"deflated-pcg\" (\"pcg\"), found \"" + m +
+                   "\"");
     }
     t.backward.tolerance = p.number(j, "backward", "tolerance", 1e-10);
     p.positive(t.backward.tolerance, "backward.tolerance");

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
@@ -82,10 +83,40 @@ enum class AdjointMethod {
   /// The plain fixed-point iteration y <- qbar + K^T A^-1 y (the adjoint of PD's own
   /// iteration; it converges at the forward pass's linear rate).
   FixedPoint,
+  /// CG on (A - K^T) mu = qbar preconditioned by A^-1, deflated by the coarse space of the
+  /// forward's Newton-Krylov method (rigid modes of each body and stiff region,
+  /// deflation_space() in methods.hpp). A - K^T is the Hessian of the step's potential Phi
+  /// (symmetric; not always positive definite): where CG meets non-positive curvature or does
+  /// not converge within BackwardOptions::pcg_max_iterations, the step falls back to GMRES
+  /// (BackwardReport::fallback).
+  DeflatedPcg,
 };
 
 inline const char* to_string(AdjointMethod m) {
-  return m == AdjointMethod::Gmres ? "gmres" : "fixed-point";
+  switch (m) {
+    case AdjointMethod::Gmres:
+      return "gmres";
+    case AdjointMethod::FixedPoint:
+      return "fixed-point";
+    case AdjointMethod::DeflatedPcg:
+      return "deflated-pcg";
+  }
+  return "?";
+}
+
+/// Parses "gmres", "fixed-point", "deflated-pcg" (alias "pcg"); false for anything else.
+inline bool parse_adjoint_method(const std::string& s, AdjointMethod& out) {
+  if (s == "pcg") {
+    out = AdjointMethod::DeflatedPcg;
+    return true;
+  }
+  for (AdjointMethod m :
+       {AdjointMethod::Gmres, AdjointMethod::FixedPoint, AdjointMethod::DeflatedPcg})
+    if (s == to_string(m)) {
+      out = m;
+      return true;
+    }
+  return false;
 }
 
 /// \brief Options of the backward pass.
@@ -97,6 +128,18 @@ struct BackwardOptions {
   double tolerance = 1e-10;
   int max_iterations = 1000;  ///< applications of the operator (one A^-1 and one K^T each)
   int restart = 40;           ///< GMRES restart length
+  /// DeflatedPcg: CG iterations before the step falls back to GMRES (which then has
+  /// max_iterations of its own).
+  int pcg_max_iterations = 500;
+  /// DeflatedPcg: deflate the rigid modes of Solver::deflation_regions() (false: plain PCG).
+  bool deflation = true;
+  /// DeflatedPcg: CG stops when its residual has not reached a new minimum in this many
+  /// iterations (at its round-off floor; PcgControl) and keeps its best iterate.
+  int pcg_stall_window = 20;
+  /// DeflatedPcg: the GMRES fallback starts from the CG iterate (y = A mu) when that iterate's
+  /// true residual is below ||qbar|| (better than the cold start y = qbar), else cold. A CG
+  /// iterate run on past its round-off floor can be far worse than zero (docs/backward.md).
+  bool fallback_warm_start = true;
 };
 
 /// \brief What the backward pass of one step did.
@@ -112,7 +155,15 @@ struct BackwardReport {
   /// Smallest eigenvalue of those Hessians over the mesh (+inf without stretch-prox terms).
   double min_prox_eigenvalue = std::numeric_limits<double>::infinity();
   double seconds = 0;
-  std::string message;  ///< empty when converged
+  std::string message;  ///< empty when converged (DeflatedPcg: also why it fell back)
+  /// DeflatedPcg: 1 when the step fell back to GMRES (non-positive curvature or the CG cap;
+  /// `message` says which), else 0. `iterations` counts CG and GMRES iterations together.
+  int fallback = 0;
+  int pcg_iterations = 0;  ///< DeflatedPcg: CG iterations (also in `iterations`)
+  /// DeflatedPcg: ||(K - K^T) x|| / ||K x|| for one fixed pseudo-random probe x on the free
+  /// DoFs: how far the operator is from the symmetric one CG assumes (round-off: K is the
+  /// Hessian of the PD energy). -1 when not measured (the other methods).
+  double asymmetry = -1;
 };
 
 /// \brief What the backward pass of a step needs from its forward pass (Algorithm 1 line 34).
@@ -157,6 +208,93 @@ struct MaterialParamGradient {
 };
 
 
+namespace detail {
+/// \brief The q-block of the adjoint system as an operator for deflated_pcg() and
+/// deflation_space(): hessian_vector() is y = (A - K^T) x on the free DoFs (zero on the
+/// Dirichlet DoFs), K = sum_e V_e G_e^T D_e G_e with the step's filtered differentials D_e;
+/// precondition() is A^-1 by the solver's persistent factor. Borrows the solver and the
+/// differentials.
+template <class SolverT, class Diffs>
+class AdjointOperator {
+ public:
+  static constexpr int Dim = SolverT::kDim;
+
+  AdjointOperator(SolverT& s, const Diffs& diff) : s_(s), diff_(diff) {
+    zero_ = VectorX::Zero(size());
+  }
+
+  Index size() const { return s_.mesh().num_vertices() * Dim; }
+
+  /// Zeroes the Dirichlet DoFs of x.
+  void mask(VectorX& x) const {
+    const auto& m = s_.dirichlet_mask();
+    if (m.rows() == 0) return;
+    for (Index v = 0; v < m.rows(); ++v)
+      for (int k = 0; k < Dim; ++k)
+        if (m(v, k)) x[Dim * v + k] = 0;
+  }
+
+  /// out = A^-1 r on the free DoFs (zero on the fixed ones).
+  void precondition(const VectorX& r, VectorX& out) const {
+    SolverT::backend_type::template apply_inverse<Dim>(s_.system(), r, zero_, out);
+  }
+
+  /// out = K^T x (transposed = true) or K x, masked.
+  void apply_K(const VectorX& x, VectorX& out, bool transposed = true) {
+    s_.element_scatter(x, out, [&](Index e, const Mat<Dim>& Fx) -> Mat<Dim> {
+      Mat<Dim> r;
+      const Eigen::Map<const Eigen::Matrix<double, Dim * Dim, 1>> f(Fx.data());
+      Eigen::Map<Eigen::Matrix<double, Dim * Dim, 1>> rv(r.data());
+      if (transposed)
+        rv = diff_[e].transpose() * f;
+      else
+        rv = diff_[e] * f;
+      return r;
+    });
+    mask(out);
+  }
+
+  /// out = A_s (x) I x (no masking).
+  void apply_A(const VectorX& x, VectorX& out) const {
+    const Index nv = s_.mesh().num_vertices();
+    using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Dim, Eigen::RowMajor>;
+    out.resize(x.size());
+    Eigen::Map<RowMat>(out.data(), nv, Dim).noalias() =
+        s_.system().matrix() * Eigen::Map<const RowMat>(x.data(), nv, Dim);
+  }
+
+  /// out = (A - K^T) x on the free DoFs (x zero on the fixed DoFs).
+  void hessian_vector(const VectorX& x, VectorX& out) {
+    apply_A(x, out);
+    VectorX kx;
+    apply_K(x, kx);
+    out -= kx;
+    mask(out);
+  }
+
+  /// ||(K - K^T) x|| / ||K x|| for a fixed pseudo-random x on the free DoFs (0 when K x = 0).
+  double asymmetry() {
+    VectorX x(size());
+    std::uint64_t state = 0x9E3779B97F4A7C15ull;
+    for (Index i = 0; i < x.size(); ++i) {
+      state = state * 6364136223846793005ull + 1442695040888963407ull;
+      x[i] = static_cast<double>(state >> 11) * 0x1.0p-53 - 0.5;
+    }
+    mask(x);
+    VectorX kx, ktx;
+    apply_K(x, kx, false);
+    apply_K(x, ktx, true);
+    const double n = kx.norm();
+    return n > 0 ? (kx - ktx).norm() / n : 0.0;
+  }
+
+ private:
+  SolverT& s_;
+  const Diffs& diff_;
+  VectorX zero_;
+};
+}  // namespace detail
+
 /// \brief The backward pass of one step of a Solver<Dim, Energy> (Algorithm 2 with K = 0).
 ///
 /// Given the step's record and the incoming gradients qbar = dL/dq_{t+h} and vbar =
@@ -187,10 +325,11 @@ class StepAdjoint {
   explicit StepAdjoint(SolverT& solver, BackwardOptions options = {})
       : solver_(solver), options_(options) {
     if (!(options_.tolerance >= 0) || options_.max_iterations < 1 || options_.restart < 1 ||
-        !(options_.eps_tr >= 0))
+        !(options_.eps_tr >= 0) || options_.pcg_max_iterations < 1 ||
+        options_.pcg_stall_window < 0)
       throw InputError(
-          "BackwardOptions: tolerance >= 0, max_iterations >= 1, restart >= 1 and "
-          "eps_tr >= 0 are required");
+          "BackwardOptions: tolerance >= 0, max_iterations >= 1, restart >= 1, "
+          "pcg_max_iterations >= 1, pcg_stall_window >= 0 and eps_tr >= 0 are required");
   }
 
   const BackwardOptions& options() const { return options_; }
@@ -249,27 +388,71 @@ class StepAdjoint {
     VectorX rhs = flat(qbar) + flat(vbar) / h;
     apply_mask(mask, rhs);
 
+    detail::AdjointOperator<SolverT, decltype(diff_)> H(s, diff_);
     auto apply_Ainv = [&](const VectorX& y) {
       VectorX x;
-      CpuBackend::template apply_inverse<Dim>(s.system(), y, zeros_(n), x);
+      H.precondition(y, x);
       return x;
     };
     auto apply_KT = [&](const VectorX& x) {
       VectorX y;
-      s.element_scatter(x, y, [&](Index e, const Mat<Dim>& Fx) -> Mat<Dim> {
-        Mat<Dim> r;
-        Eigen::Map<Eigen::Matrix<double, Dim * Dim, 1>>(r.data()) =
-            diff_[e].transpose() * Eigen::Map<const Eigen::Matrix<double, Dim * Dim, 1>>(Fx.data());
-        return r;
-      });
-      apply_mask(mask, y);
+      H.apply_K(x, y);
       return y;
     };
     auto op = [&](const VectorX& y) -> VectorX { return y - apply_KT(apply_Ainv(y)); };
 
-    VectorX y = rhs;
+    VectorX y = rhs, mu;
+    bool have_mu = false;  // DeflatedPcg solves for mu itself
     double relres = 0;
-    if (options_.method == AdjointMethod::Gmres) {
+    if (options_.method == AdjointMethod::DeflatedPcg) {
+      const double bnorm = rhs.norm();
+      rep.asymmetry = H.asymmetry();
+      static const std::vector<std::vector<Index>> kNone;
+      deflation_space(H, options_.deflation ? s.deflation_regions() : kNone, qs, Z_, HZ_, E_);
+      // The coarse matrix Z^T H Z must be positive definite too.
+      const bool coarse_ok = Z_.cols() == 0 || (E_.info() == Eigen::Success &&
+                                                 E_.vectorD().minCoeff() > 0 && E_.isPositive());
+      PcgControl ctl;
+      ctl.stall_window = options_.pcg_stall_window;
+      int it = 0;
+      if (coarse_ok)
+        it = deflated_pcg(H, Z_, HZ_, E_, rhs, mu, options_.tolerance,
+                          options_.pcg_max_iterations, nullptr, &ctl);
+      else
+        mu = VectorX::Zero(n);
+      const bool nonpositive = !coarse_ok || ctl.nonpositive;
+      rep.pcg_iterations = it;
+      // The true residual (CG's is the recursively updated one).
+      VectorX Hmu;
+      H.hessian_vector(mu, Hmu);
+      relres = bnorm > 0 ? (rhs - Hmu).norm() / bnorm : 0.0;
+      rep.iterations = it;
+      if (nonpositive || !(relres <= options_.tolerance)) {
+        rep.fallback = 1;
+        std::ostringstream os;
+        if (!coarse_ok)
+          os << "coarse matrix Z^T H Z not positive definite";
+        else if (nonpositive)
+          os << "non-positive curvature after " << it << " CG iterations";
+        else
+          os << "CG residual " << relres << " after " << it << " iterations"
+             << (ctl.stalled ? " (stalled)" : "");
+        const bool warm = options_.fallback_warm_start && relres < 1 && mu.allFinite();
+        os << "; fell back to GMRES (" << (warm ? "warm" : "cold") << " start)";
+        const std::string why = os.str();
+        if (warm) {
+          H.apply_A(mu, y);  // y = A mu: mu = A^-1 y
+          apply_mask(mask, y);
+        } else {
+          y = rhs;
+        }
+        rep.iterations += detail::gmres(op, rhs, y, options_.tolerance, options_.max_iterations,
+                                        options_.restart, &relres);
+        rep.message = why;
+      } else {
+        have_mu = true;
+      }
+    } else if (options_.method == AdjointMethod::Gmres) {
       rep.iterations = detail::gmres(op, rhs, y, options_.tolerance, options_.max_iterations,
                                      options_.restart, &relres);
     } else {
@@ -303,9 +486,9 @@ class StepAdjoint {
       std::ostringstream os;
       os << "adjoint not converged after " << rep.iterations << " iterations (residual " << relres
          << ", tolerance " << options_.tolerance << ")";
-      rep.message = os.str();
+      rep.message = rep.message.empty() ? os.str() : rep.message + "; " + os.str();
     }
-    const VectorX mu = apply_Ainv(y);
+    if (!have_mu) mu = apply_Ainv(y);
     Index bad = -1;
     if (!CpuBackend::all_finite(mu, &bad)) {
       std::ostringstream os;
@@ -445,15 +628,11 @@ class StepAdjoint {
       for (int k = 0; k < Dim; ++k)
         if (mask(v, k)) x[Dim * v + k] = 0;
   }
-  const VectorX& zeros_(Index n) {
-    if (zero_.size() != n) zero_ = VectorX::Zero(n);
-    return zero_;
-  }
-
   SolverT& solver_;
   BackwardOptions options_;
   std::vector<Diff, Eigen::aligned_allocator<Diff>> diff_;
-  VectorX zero_;
+  MatrixX Z_, HZ_;  ///< DeflatedPcg: coarse space and H Z of the last step
+  Eigen::LDLT<MatrixX> E_;
 };
 
 /// \brief Chains a MaterialGradient to d loss / d(E_e, nu_e, alpha, beta0) for the solver's

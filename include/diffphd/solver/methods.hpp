@@ -217,14 +217,30 @@ MatrixX deflation_basis(const Potential& P, const std::vector<std::vector<Index>
   return Q.leftCols(rank);
 }
 
+/// \brief Optional controls and outcome of deflated_pcg().
+struct PcgControl {
+  /// Stop when the residual has not reached a new minimum in this many iterations (0: never),
+  /// and return the iterate of the smallest residual: at a tight tolerance the recursive
+  /// residual stagnates at its round-off floor, and a deflated CG run on from there can
+  /// diverge (the adjoint at 1e-12 on a 1e4x bar: 2e-12 after 29 iterations, 1e5 after 500).
+  int stall_window = 0;
+  bool nonpositive = false;  ///< out: p^T H p <= 0 along a search direction
+  bool stalled = false;      ///< out: stopped by stall_window
+};
+
 /// \brief Deflated preconditioned CG (Saad, Yeung, Erhel and Guyomarc'h 2000): solves H x = b on
 /// the free DoFs with the preconditioner A^-1, the coarse space Z solved exactly (x0 =
-/// Z E^-1 Z^T b, search directions H-orthogonal to Z). Stops when ||b - H x|| <= tol ||b||.
-/// Returns the iterations; exact (0 iterations) when b = H Z c.
+/// Z E^-1 Z^T b, search directions H-orthogonal to Z). Stops when ||b - H x|| <= tol ||b||
+/// (the recursively updated residual). Returns the iterations; exact (0 iterations) when
+/// b = H Z c. `P` needs mask(), precondition() and hessian_vector() (PdPotential,
+/// detail::AdjointOperator). Where a search direction has non-positive curvature p^T H p <= 0
+/// (H not SPD along it) the iteration stops and sets `ctl->nonpositive`.
 template <class Potential>
 int deflated_pcg(Potential& P, const MatrixX& Z, const MatrixX& HZ,
                  const Eigen::LDLT<MatrixX>& E, const VectorX& b, VectorX& x, double tol,
-                 int max_it, double* relres = nullptr) {
+                 int max_it, double* relres = nullptr, PcgControl* ctl = nullptr) {
+  const int window = ctl ? ctl->stall_window : 0;
+  if (ctl) ctl->nonpositive = ctl->stalled = false;
   const double bn = b.norm();
   auto coarse = [&](const VectorX& y) -> VectorX {  // Z E^-1 (HZ)^T y
     if (Z.cols() == 0) return VectorX::Zero(y.size());
@@ -237,7 +253,10 @@ int deflated_pcg(Potential& P, const MatrixX& Z, const MatrixX& HZ,
   double rn = r.norm();
   if (relres) *relres = bn > 0 ? rn / bn : 0;
   if (rn <= tol * bn || bn == 0) return 0;
-  VectorX z, p, w;
+  VectorX z, p, w, x_best;
+  double best = rn;
+  int since = 0;
+  if (window > 0) x_best = x;
   P.precondition(r, z);
   p = z - coarse(z);
   double rz = r.dot(z);
@@ -245,7 +264,10 @@ int deflated_pcg(Potential& P, const MatrixX& Z, const MatrixX& HZ,
   while (it < max_it) {
     P.hessian_vector(p, w);
     const double pw = p.dot(w);
-    if (!(pw > 0)) break;  // not SPD along p (should not happen after projection)
+    if (!(pw > 0)) {  // not SPD along p (should not happen after projection)
+      if (ctl) ctl->nonpositive = true;
+      break;
+    }
     const double alpha = rz / pw;
     x += alpha * p;
     r -= alpha * w;
@@ -253,13 +275,47 @@ int deflated_pcg(Potential& P, const MatrixX& Z, const MatrixX& HZ,
     rn = r.norm();
     if (relres) *relres = rn / bn;
     if (rn <= tol * bn || !std::isfinite(rn)) break;
+    if (window > 0) {
+      if (rn < best) {
+        best = rn;
+        x_best = x;
+        since = 0;
+      } else if (++since >= window) {
+        ctl->stalled = true;
+        break;
+      }
+    }
     P.precondition(r, z);
     const double rz_new = r.dot(z);
     const double beta = rz_new / rz;
     rz = rz_new;
     p = z + beta * p - coarse(z);
   }
+  if (window > 0 && !(rn <= best)) {  // the best iterate, not the last
+    x.swap(x_best);
+    if (relres) *relres = best / bn;
+  }
   return it;
+}
+
+/// \brief The coarse space of deflated_pcg() at x: Z = deflation_basis(P, regions, x) (the
+/// rigid modes of each region, orthonormal, zero on Dirichlet DoFs), HZ = H Z (one Hessian
+/// product per column) and the LDL^T factor of E = Z^T H Z. Empty (Z with 0 columns) when
+/// `regions` is empty. Shared by newton_krylov() and the deflated-PCG adjoint (adjoint.hpp).
+template <class Potential>
+void deflation_space(Potential& P, const std::vector<std::vector<Index>>& regions,
+                     const VectorX& x, MatrixX& Z, MatrixX& HZ, Eigen::LDLT<MatrixX>& E) {
+  Z.resize(x.size(), 0);
+  HZ.resize(x.size(), 0);
+  if (regions.empty()) return;
+  Z = deflation_basis(P, regions, x);
+  HZ.resize(x.size(), Z.cols());
+  VectorX col;
+  for (Index j = 0; j < Z.cols(); ++j) {
+    P.hessian_vector(Z.col(j), col);
+    HZ.col(j) = col;
+  }
+  if (Z.cols()) E.compute(MatrixX(Z.transpose().lazyProduct(HZ)));
 }
 
 namespace detail {
@@ -416,20 +472,9 @@ MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
   Eigen::LDLT<MatrixX> E;
   auto direction = [&](const VectorX& x, const VectorX& g, double gn, bool tight,
                        MethodResult& res, VectorX& d) {
-    if (!tight) {  // the coarse space at this iterate
-      Z.resize(x.size(), 0);
-      HZ.resize(x.size(), 0);
-      if (o.deflation && !regions.empty()) {
-        Z = deflation_basis(P, regions, x);
-        HZ.resize(x.size(), Z.cols());
-        VectorX col;
-        for (Index j = 0; j < Z.cols(); ++j) {
-          P.hessian_vector(Z.col(j), col);
-          HZ.col(j) = col;
-        }
-      }
-      if (Z.cols()) E.compute(MatrixX(Z.transpose().lazyProduct(HZ)));
-    }
+    static const std::vector<std::vector<Index>> kNone;
+    if (!tight)  // the coarse space at this iterate
+      deflation_space(P, o.deflation ? regions : kNone, x, Z, HZ, E);
     const double eta =
         tight ? kTight : std::min(o.forcing_max, std::sqrt(gn / std::max(test.f0, 1e-300)));
     res.inner_iterations += 1 + deflated_pcg(P, Z, HZ, E, VectorX(-g), d, eta, o.max_cg_iterations);

@@ -59,6 +59,7 @@ struct RolloutGradient {
   int tau_count[3] = {0, 0, 0};            ///< steps with tau = 0, 1/2, 1
   int unconverged_steps = 0;               ///< forward steps that hit their budget
   int unconverged_adjoints = 0;            ///< backward steps above their tolerance
+  int adjoint_fallbacks = 0;  ///< DeflatedPcg backward steps that fell back to GMRES
   double seconds_forward = 0;              ///< the forward pass (and, with checkpoints,
                                            ///< the recomputation is in seconds_backward)
   double seconds_backward = 0;
@@ -178,6 +179,7 @@ class Rollout {
               &qbar, &vbar);
         BackwardReport br = adjoint_.backward(rec, qbar, vbar, out, mat);
         if (!br.converged) ++g.unconverged_adjoints;
+        g.adjoint_fallbacks += br.fallback;
         g.tau_count[br.tau == 0 ? 0 : (br.tau < 1 ? 1 : 2)] += 1;
         g.steps[i] = std::move(br);
         g.dforces[i] = out.df;
