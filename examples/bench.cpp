@@ -90,8 +90,21 @@ int cmd_bench(const BenchOptions& opt) {
   std::vector<Row> rows;
   const std::string csv = (fs::path(opt.out_dir) / "results.csv").string();
 
+  std::optional<VolumeWeight> volume_weight;
+  if (!opt.volume_weight.empty()) {
+    VolumeWeight v;
+    if (!parse_volume_weight(opt.volume_weight, v))
+      throw InputError("--volume-weight: unknown volume weight \"" + opt.volume_weight +
+                       "\" (lambda, lame)");
+    if (v == VolumeWeight::Lame && !io::has_volume_term(first.solver.energy))
+      throw InputError(std::string("--volume-weight lame: solver.energy \"") +
+                       io::to_string(first.solver.energy) + "\" has no Volume term");
+    volume_weight = v;
+  }
+
   for (const auto& c : contrasts) {
-    const io::SceneSpec scene = io::load_scene(opt.scene_path, c);
+    io::SceneSpec scene = io::load_scene(opt.scene_path, c);
+    if (volume_weight) scene.solver.volume_weight = *volume_weight;
     const double contrast = c.value_or(scene.contrast.factor);
     // The accuracy reference: Newton on the true Neo-Hookean energy, converged tightly. The
     // Newton baseline has no contact model: on a contact scene there is no Newton reference
@@ -211,6 +224,7 @@ int cmd_bench(const BenchOptions& opt) {
         }
         io::SceneSpec s = scene;
         s.solver.energy = e;
+        if (!io::has_volume_term(e)) s.solver.volume_weight = VolumeWeight::Lambda;
         add("diffphd", tol, bench_pd_dispatch(s, {}, frames), false, io::to_string(e));
       }
       io::SceneSpec off = scene, on = scene;

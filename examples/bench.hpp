@@ -22,6 +22,9 @@ struct BenchOptions {
   double model_reference_eps = 1e-10;  ///< gradient tolerance of the same-model direct-Newton references
   int model_reference_max_iterations = 20000;
   std::optional<GateScale> gate;  ///< --gate for the pd methods (default: the scene's)
+  /// --volume-weight: "lambda" or "lame" for every PD run and same-model reference (empty:
+  /// the scene's solver.volume_weight)
+  std::string volume_weight;
   bool features = false;  ///< also the feature-cost runs (energies, damping, Anderson)
   bool progress = true;
 };

@@ -148,7 +148,7 @@ int main(int argc, char** argv) {
   std::string scene_path, out_dir;
   std::optional<double> contrast, eps_rel;
   std::optional<int> frames, anderson, max_iterations;
-  std::string routing, gate, method;
+  std::string routing, gate, method, volume_weight;
   bool no_frames = false;
   auto* run = app.add_subcommand("run", "Simulate a scene file (frames, per-step stats, summary)");
   run->add_option("SCENE", scene_path, "Scene file (JSON, see docs/scenes.md)")->required();
@@ -173,6 +173,10 @@ int main(int argc, char** argv) {
                   "Forward method: auto | pd | newton-krylov | lbfgs | newton-direct "
                   "(docs/solver.md)")
       ->check(CLI::IsMember({"auto", "pd", "newton-krylov", "lbfgs", "newton-direct"}));
+  run->add_option("--volume-weight", volume_weight,
+                  "Volume term weight: lambda (w = lambda, default) | lame (w = d lambda: "
+                  "small-strain Lame parameters; docs/energies.md)")
+      ->check(CLI::IsMember({"lambda", "lame"}));
   run->add_flag("--no-frames", no_frames, "Write stats and summary only");
   run->add_flag("--json", json_out, "Print the summary as one JSON object on stdout");
 
@@ -208,6 +212,11 @@ int main(int argc, char** argv) {
                    "Convergence test of the pd methods: gradient | paper | step-relative "
                    "(default: the scene's)")
       ->check(CLI::IsMember({"gradient", "paper", "step-relative"}));
+  bench
+      ->add_option("--volume-weight", bench_opt.volume_weight,
+                   "Volume term weight of the PD runs: lambda | lame (default: the scene's "
+                   "solver.volume_weight)")
+      ->check(CLI::IsMember({"lambda", "lame"}));
   bench->add_flag("--features", bench_opt.features,
                   "Also the feature-cost runs: energies, damping, Anderson window");
   bench->add_flag("--no-progress", bench_no_progress, "No progress bar");
@@ -417,6 +426,11 @@ int main(int argc, char** argv) {
         diffphd::SolverMethod m;
         diffphd::parse_solver_method(method, m);
         opt.method = m;
+      }
+      if (!volume_weight.empty()) {
+        diffphd::VolumeWeight v;
+        diffphd::parse_volume_weight(volume_weight, v);  // checked by CLI::IsMember
+        opt.volume_weight = v;
       }
       return cmd_run(scene_path, contrast, opt, json_out);
     }

@@ -33,6 +33,7 @@ struct RunOptions {
   std::optional<io::Routing> routing;
   std::optional<GateScale> gate;  ///< --gate
   std::optional<SolverMethod> method;  ///< --method
+  std::optional<VolumeWeight> volume_weight;  ///< --volume-weight
   bool write_frames = true;       ///< VTU/PVD and OBJ per frame (stats are always written)
   bool progress = true;           ///< progress bar on a terminal
 };
@@ -66,6 +67,7 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   over.routing = opt.routing;
   over.gate = opt.gate;
   over.method = opt.method;
+  over.volume_weight = opt.volume_weight;
   SceneSimulation<Dim, Energy, Contact> run(scene, over);
   const SimplicialMesh<Dim>& mesh = run.mesh();
   const MaterialField& materials = run.materials();
@@ -178,6 +180,7 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   j["dim"] = Dim;
   j["energy"] = io::to_string(scene.solver.energy);
   j["routing"] = io::to_string(routing);
+  j["volume_weight"] = to_string(so.volume_weight);
   j["contrast"] = materials.stiffness_contrast();
   j["anderson_window"] = sim.anderson_window();
   j["eps_rel"] = so.eps_rel;

@@ -5,6 +5,7 @@
 // fixed-point adjoint; checkpointing against the full cache; a 200-step rollout.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <string>
@@ -59,6 +60,7 @@ struct Problem {
     b.max_iterations = 5000;
     return b;
   }();
+  VolumeWeight volume_weight = VolumeWeight::Lambda;
 
   Problem() {
     const Index nv = mesh.num_vertices();
@@ -113,6 +115,7 @@ struct Problem {
     o.max_iterations = 20000;
     o.gate_scale = GateScale::StepRelative;
     o.anderson_window = 5;
+    o.volume_weight = volume_weight;
     return o;
   }
 
@@ -256,8 +259,10 @@ std::vector<Kind<Dim>> kinds(const Params<Dim>& base, Index ne, Index nv, int st
   return out;
 }
 
+/// Checks the kinds named in `only` (every kind when empty).
 template <int Dim, class E>
-void check_all_kinds(Problem<Dim, E>& prob, double tol = 1e-5) {
+void check_all_kinds(Problem<Dim, E>& prob, double tol = 1e-5,
+                     const std::vector<std::string>& only = {}) {
   const Params<Dim> base = prob.initial();
   RolloutGradient<Dim> g;
   prob.evaluate(base, &g);
@@ -268,6 +273,7 @@ void check_all_kinds(Problem<Dim, E>& prob, double tol = 1e-5) {
   const bool act = Solver<Dim, E>::kHasFibreTerms;
   for (const Kind<Dim>& k :
        kinds<Dim>(base, prob.mesh.num_elements(), prob.mesh.num_vertices(), prob.steps, act)) {
+    if (!only.empty() && std::find(only.begin(), only.end(), k.name) == only.end()) continue;
     Params<Dim> pp = base, pm = base;
     k.perturb(pp, k.eps);
     k.perturb(pm, -k.eps);
@@ -291,6 +297,23 @@ TEST_CASE("Rollout gradient matches central FD, 3D corotated+volume, 10x contras
 TEST_CASE("Rollout gradient matches central FD, 2D corotated+volume, 10x contrast", "[adjoint]") {
   Problem<2, Energies<Corotated, Volume>> prob;
   check_all_kinds(prob);
+}
+
+TEST_CASE("Rollout gradient under volume_weight \"lame\" matches central FD (E, nu, 3D and 2D)",
+          "[adjoint][volume-weight]") {
+  // Volume's weight is d lambda_e: the material adjoint must differentiate the scaled weight
+  // (detail::weight_gradient of element_weight), else d/dE and d/dnu miss (d - 1) lambda's part.
+  const std::vector<std::string> material{"youngs_modulus", "poisson_ratio"};
+  SECTION("3D") {
+    Problem<3, Energies<Corotated, Volume>> prob;
+    prob.volume_weight = VolumeWeight::Lame;
+    check_all_kinds(prob, 1e-5, material);
+  }
+  SECTION("2D") {
+    Problem<2, Energies<Corotated, Volume>> prob;
+    prob.volume_weight = VolumeWeight::Lame;
+    check_all_kinds(prob, 1e-5, material);
+  }
 }
 
 TEST_CASE("Rollout gradient matches central FD, 3D Neo-Hookean prox (mesh-wide means)",

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "diffphd/energy/energy.hpp"
@@ -608,6 +609,71 @@ TEMPLATE_TEST_CASE_SIG("Energies<Corotated, Volume> sums its parts", "[energy][c
   const MatD<Dim> want = E::weighted_projection<double, Dim>(F, kParams, kMeans) +
                          kParams.weight * Muscle::project<double, Dim>(F, kParams, kMeans);
   CHECK((EM::weighted_projection<double, Dim>(F, kParams, kMeans) - want).norm() < 1e-13);
+}
+
+TEMPLATE_TEST_CASE_SIG("Corotated + Volume at small strain: Lame (mu, lambda) under \"lame\"",
+                       "[energy][composite][volume-weight]", ((int Dim), Dim), 2, 3) {
+  // The Hessian of psi(F) = sum_k w_k / 2 ||F - p_k(F)||^2 is sum_k w_k (I - dp_k/dF). At F = I
+  // under VolumeWeight::Lame (w = Dim lambda) it is the linear-elasticity tensor
+  // C dF = mu (dF + dF^T) + lambda tr(dF) I; under Lambda (w = lambda) lambda becomes lambda / Dim.
+  using E = Energies<Corotated, Volume>;
+  const double mu = 1.3, lambda = 2.9;
+  const MatD<Dim> I = MatD<Dim>::Identity();
+  auto elasticity = [&](double lam) {
+    DiffD<Dim> C = DiffD<Dim>::Zero();
+    for (int b = 0; b < Dim * Dim; ++b) {
+      MatD<Dim> dF = MatD<Dim>::Zero();
+      dF.data()[b] = 1.0;
+      const MatD<Dim> dP = mu * (dF + dF.transpose()) + lam * dF.trace() * I;
+      C.col(b) = Eigen::Map<const Eigen::Matrix<double, Dim * Dim, 1>>(dP.data());
+    }
+    return C;
+  };
+  for (VolumeWeight vw : {VolumeWeight::Lambda, VolumeWeight::Lame}) {
+    INFO(to_string(vw));
+    ElementParams p;
+    p.mu = mu;
+    p.lambda = lambda;
+    p.volume_scale = volume_scale(vw, Dim);
+    const double lam_eff = vw == VolumeWeight::Lame ? lambda : lambda / Dim;
+    CHECK(Volume::element_weight(p) == Approx(p.volume_scale * lambda).epsilon(1e-15));
+    CHECK(E::element_weight(p) == Approx(2 * mu + p.volume_scale * lambda).epsilon(1e-15));
+    const DiffD<Dim> H = E::element_weight(p) * DiffD<Dim>::Identity() -
+                         E::weighted_differential<double, Dim>(I, p, kMeans);
+    const DiffD<Dim> C = elasticity(lam_eff);
+    CHECK((H - C).norm() < 1e-12 * C.norm());
+    // The same Hessian by central differences of the gradient sum_k w_k (F - p_k(F)).
+    const double h = 1e-6;
+    DiffD<Dim> Hfd;
+    for (int b = 0; b < Dim * Dim; ++b) {
+      MatD<Dim> Fp = I, Fm = I;
+      Fp.data()[b] += h;
+      Fm.data()[b] -= h;
+      const MatD<Dim> gp = E::element_weight(p) * Fp - E::weighted_projection<double, Dim>(Fp, p, kMeans);
+      const MatD<Dim> gm = E::element_weight(p) * Fm - E::weighted_projection<double, Dim>(Fm, p, kMeans);
+      const MatD<Dim> dg = (gp - gm) / (2 * h);
+      Hfd.col(b) = Eigen::Map<const Eigen::Matrix<double, Dim * Dim, 1>>(dg.data());
+    }
+    CHECK((Hfd - C).norm() < 1e-7 * C.norm());
+    // The material derivative of the weights follows the scale: d w / d lambda = volume_scale.
+    const Eigen::Vector2d gv = detail::weight_gradient<Volume>(p);
+    CHECK(gv[0] == 0.0);
+    CHECK(gv[1] == Approx(p.volume_scale).epsilon(1e-15));
+    const Eigen::Vector2d gc = detail::weight_gradient<Corotated>(p);
+    CHECK(gc[0] == Approx(2.0).epsilon(1e-15));
+    CHECK(gc[1] == 0.0);
+  }
+  // The names.
+  VolumeWeight v = VolumeWeight::Lambda;
+  CHECK(parse_volume_weight("lame", v));
+  CHECK(v == VolumeWeight::Lame);
+  CHECK(parse_volume_weight("lambda", v));
+  CHECK(v == VolumeWeight::Lambda);
+  CHECK_FALSE(parse_volume_weight("Lame", v));
+  CHECK(v == VolumeWeight::Lambda);
+  CHECK(std::string(to_string(VolumeWeight::Lame)) == "lame");
+  CHECK(volume_scale(VolumeWeight::Lambda, Dim) == 1.0);
+  CHECK(volume_scale(VolumeWeight::Lame, Dim) == double(Dim));
 }
 
 TEMPLATE_TEST_CASE_SIG("project_svd / differential_svd agree with project / differential",

@@ -430,6 +430,48 @@ TEST_CASE("scene: every generator builds", "[scene]") {
   fs::remove_all(dir);
 }
 
+TEST_CASE("scene: solver.volume_weight", "[scene][volume-weight]") {
+  namespace fs = std::filesystem;
+  CHECK(io::load_scene(kScenes + "demo.json").solver.volume_weight == VolumeWeight::Lambda);
+  CHECK(io::has_volume_term(io::EnergyKind::CorotatedVolume));
+  CHECK(io::has_volume_term(io::EnergyKind::CorotatedVolumeMuscle));
+  CHECK_FALSE(io::has_volume_term(io::EnergyKind::Corotated));
+  CHECK_FALSE(io::has_volume_term(io::EnergyKind::NeoHookean));
+  CHECK_FALSE(io::has_volume_term(io::EnergyKind::NeoHookeanLogVolume));
+  const fs::path dir =
+      fs::temp_directory_path() / ("diffphd_test_scene_volume_weight_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const fs::path file = dir / "volume_weight.json";
+  auto load = [&](const std::string& solver) {
+    {
+      std::ofstream out(file);
+      out << R"({"mesh": {"generator": "box", "lo": [0, 0, 0], "hi": [1, 1, 1], "cells": [1, 1, 1]},
+ "material": {"youngs_modulus": 1e5}, "time": {"h": 0.01, "frames": 1}, "solver": )"
+          << solver << "}\n";
+    }
+    return io::load_scene(file.string());
+  };
+  CHECK(load(R"({"volume_weight": "lame"})").solver.volume_weight == VolumeWeight::Lame);
+  CHECK(load(R"({"volume_weight": "lambda", "energy": "corotated+volume"})").solver.volume_weight ==
+        VolumeWeight::Lambda);
+  CHECK(load(R"({"energy": "corotated", "routing": "uniform"})").solver.volume_weight ==
+        VolumeWeight::Lambda);
+  CHECK_THROWS_WITH(load(R"({"volume_weight": "Lame"})"),
+                    Contains("solver.volume_weight: unknown volume weight \"Lame\" (expected "
+                             "\"lambda\" or \"lame\")"));
+  CHECK_THROWS_WITH(load(R"({"volume_weight": 3})"),
+                    Contains("solver.volume_weight: expected a string"));
+  // The key means nothing without the Volume term (the energy key may come after it).
+  for (const char* energy : {"corotated", "neo-hookean", "neo-hookean+logvolume"}) {
+    INFO(energy);
+    CHECK_THROWS_WITH(
+        load(std::string(R"({"volume_weight": "lame", "energy": ")") + energy + "\"}"),
+        Contains(std::string("solver.volume_weight: solver.energy \"") + energy +
+                 "\" has no Volume term"));
+  }
+  fs::remove_all(dir);
+}
+
 // ---- muscles -------------------------------------------------------------------------------
 
 namespace {

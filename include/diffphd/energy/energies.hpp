@@ -163,14 +163,22 @@ DIFFPHD_HOST_DEVICE inline Eigen::Matrix<S, Dim * Dim, Dim * Dim> differential_f
     return differential_with_svd<T, S, Dim>(F, U, sigma, V, p, means);
 }
 
-/// The linear weight rule of a material term: (d w / d mu, d w / d lambda).
+/// The linear weight rule of a material term for this element: (d w_e / d mu, d w_e / d lambda)
+/// of T::element_weight, so that per-element factors (Volume's volume_scale) are included.
 template <class T>
-inline Eigen::Vector2d weight_gradient() {
+inline Eigen::Vector2d weight_gradient(const ElementParams& p) {
   if constexpr (acts_on_fibre_v<T>) {
     return Eigen::Vector2d::Zero();
   } else {
-    const double w0 = T::weight(0.0, 0.0);
-    return Eigen::Vector2d(T::weight(1.0, 0.0) - w0, T::weight(0.0, 1.0) - w0);
+    ElementParams q = p;
+    q.mu = 0.0;
+    q.lambda = 0.0;
+    const double w0 = T::element_weight(q);
+    q.mu = 1.0;
+    const double wmu = T::element_weight(q) - w0;
+    q.mu = 0.0;
+    q.lambda = 1.0;
+    return Eigen::Vector2d(wmu, T::element_weight(q) - w0);
   }
 }
 
@@ -203,7 +211,8 @@ struct TermChecks {
 /// Per element the surrogate is sum_k w_k V / 2 ||F - p_k||^2 (for fibre terms
 /// k V / 2 ||F m - p||^2). The solver needs
 /// * for the global matrix: weight(mu, lambda) = sum of the isotropic terms' weights (each term
-///   computes its own weight from (mu, lambda): Corotated 2 mu, Volume lambda, ...), times
+///   computes its own weight from (mu, lambda): Corotated 2 mu, Volume lambda (times
+///   ElementParams::volume_scale in element_weight), ...), times
 ///   V_e G_e^T G_e, plus, when a fibre term (Muscle) is present, fibre_weight(p) times
 ///   V_e G_e^T (m m^T (x) I) G_e (Muscle::fibre_operator);
 /// * for the right-hand side: weighted_projection(F) = sum_k w_k p_k (fibre terms contribute
@@ -386,7 +395,7 @@ struct Energies {
             const Eigen::Matrix<double, Dim, 1> m = detail::fibre_direction<double, Dim>(p);
             out.d_activation += w * n.dot(mu_F * m);
           } else {
-            const Eigen::Vector2d wg = detail::weight_gradient<Terms>();
+            const Eigen::Vector2d wg = detail::weight_gradient<Terms>(p);
             const Eigen::Matrix<double, Dim, Dim> pk =
                 detail::project_with_svd<Terms, double, Dim>(F, U, sigma, V, p, means, nullptr);
             const double c = (mu_F.array() * (pk - F).array()).sum();

@@ -25,7 +25,7 @@ namespace diffphd {
 /// LogVolume, StretchEnergy) read mu and lambda (and compute their own weight from them); the
 /// Neo-Hookean-like prox terms read mu and lambda only under ProxRouting::PerElement; Muscle reads
 /// `weight` (its stiffness k_e, which is not a function of the Lame parameters), `fibre` and
-/// `activation`.
+/// `activation`; Volume scales its weight by `volume_scale`.
 struct ElementParams {
   double mu = 0.0;      ///< Lame mu_e of the element
   double lambda = 0.0;  ///< Lame lambda_e of the element
@@ -36,6 +36,10 @@ struct ElementParams {
   Eigen::Vector3d fibre = Eigen::Vector3d::UnitX();
   /// Muscle activation a: the target fibre stretch |F m| (1 = rest length).
   double activation = 1.0;
+  /// Factor of Volume's weight: w = volume_scale lambda_e. 1 is DiffPD's w = lambda
+  /// (VolumeWeight::Lambda); Dim gives Corotated + Volume the element's Lame parameters at small
+  /// strain (VolumeWeight::Lame, docs/energies.md). The other terms ignore it.
+  double volume_scale = 1.0;
 };
 
 /// \brief Mesh-wide means used by the Neo-Hookean-like local proxes (Sec. 4.2): the prox of

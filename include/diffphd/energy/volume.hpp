@@ -2,11 +2,44 @@
 /// \file volume.hpp
 /// \brief The volume-preservation PD term: p = the closest matrix to F with det p = 1.
 
+#include <string>
+
 #include "energy_common.hpp"
 
 namespace diffphd {
 
-/// \brief Volume PD term, w = lambda, p = argmin_{det p = 1} ||F - p||.
+/// \brief The weight of the Volume term (SolverOptions::volume_weight, scene key
+/// solver.volume_weight). At small strain Corotated (w = 2 mu) plus Volume (w = c lambda) is
+/// linear elasticity with Lame parameters (mu, c lambda / Dim) (docs/energies.md).
+enum class VolumeWeight {
+  /// "lambda" (default): w = lambda_e, DiffPD's weight; small-strain Lame (mu, lambda / Dim).
+  Lambda,
+  /// "lame": w = Dim lambda_e, so that Corotated + Volume has each element's own Lame
+  /// parameters (mu, lambda) at small strain.
+  Lame,
+};
+
+inline const char* to_string(VolumeWeight v) {
+  return v == VolumeWeight::Lame ? "lame" : "lambda";
+}
+
+/// Parses "lambda" or "lame"; false for anything else (out unchanged).
+inline bool parse_volume_weight(const std::string& s, VolumeWeight& out) {
+  for (VolumeWeight v : {VolumeWeight::Lambda, VolumeWeight::Lame})
+    if (s == to_string(v)) {
+      out = v;
+      return true;
+    }
+  return false;
+}
+
+/// ElementParams::volume_scale of a rule: 1 (Lambda) or dim (Lame).
+inline double volume_scale(VolumeWeight v, int dim) {
+  return v == VolumeWeight::Lame ? double(dim) : 1.0;
+}
+
+/// \brief Volume PD term, w = volume_scale lambda (1 by default, VolumeWeight), p = argmin_{det p
+/// = 1} ||F - p||.
 ///
 /// In stretch space: s* = argmin ||s - sigma||^2 subject to prod s = 1, s > 0, and
 /// p = U diag(s*) V^T. Solved in log-stretches x = ln s on the hyperplane sum x = 0 by Newton
@@ -23,10 +56,11 @@ namespace diffphd {
 /// P = I - w_hat w_hat^T; then detail::spectral_differential adds the rotation terms.
 struct Volume : detail::SvdTerm<Volume> {
   static constexpr const char* name = "volume";
-  /// w = lambda.
+  /// w = lambda (the rule's unscaled form; element_weight applies ElementParams::volume_scale).
   DIFFPHD_HOST_DEVICE static double weight(double /*mu*/, double lambda) { return lambda; }
+  /// w_e = volume_scale lambda_e.
   DIFFPHD_HOST_DEVICE static double element_weight(const ElementParams& p) {
-    return weight(p.mu, p.lambda);
+    return p.volume_scale * weight(p.mu, p.lambda);
   }
 
   /// The closest stretches with prod s = 1, s > 0 (see the class doc).

@@ -53,6 +53,7 @@
 #include "../core/mesh.hpp"
 #include "../core/types.hpp"
 #include "../contact/types.hpp"
+#include "../energy/volume.hpp"
 #include "generators.hpp"
 #include "mesh_with_regions.hpp"
 #include "plant.hpp"
@@ -78,6 +79,11 @@ enum class EnergyKind {
 /// True when the energy has a muscle (fibre) term, so that a scene with it needs "muscles".
 inline bool has_muscle_term(EnergyKind e) {
   return e == EnergyKind::CorotatedVolumeMuscle;
+}
+
+/// True when the energy has the Volume term, so that solver.volume_weight applies to it.
+inline bool has_volume_term(EnergyKind e) {
+  return e == EnergyKind::CorotatedVolume || e == EnergyKind::CorotatedVolumeMuscle;
 }
 
 /// \brief How per-element stiffness is routed ("routing" in "solver"; paper Sec. 4.2, Fig. 4).
@@ -375,6 +381,9 @@ struct ContactSpec {
 struct SolverSpec {
   EnergyKind energy = EnergyKind::CorotatedVolume;
   Routing routing = Routing::StiffnessAware;
+  /// Volume's weight: "lambda" (w = lambda_e, default) or "lame" (w = d lambda_e); only for
+  /// energies with the Volume term (has_volume_term)
+  VolumeWeight volume_weight = VolumeWeight::Lambda;
   int anderson_window = -1;  ///< -1: automatic (m = 1 heterogeneous, 5 homogeneous); 0: off
   double anderson_reset = 10.0;  ///< discard the AA history when |gamma| exceeds this (> 0)
   double eps_rel = 1e-4;     ///< relative tolerance of the convergence test, > 0
@@ -1542,8 +1551,8 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
     const json& j = root.at("solver");
     const std::string path = "solver";
     p.expect_object(j, path,
-                    {"energy", "routing", "anderson_window", "anderson_reset", "eps_rel",
-                     "eps_abs", "gate", "max_iterations", "damping", "method"});
+                    {"energy", "routing", "volume_weight", "anderson_window", "anderson_reset",
+                     "eps_rel", "eps_abs", "gate", "max_iterations", "damping", "method"});
     SolverSpec& sv = s.solver;
     if (j.contains("energy")) {
       const std::string e = p.string(j.at("energy"), "solver.energy");
@@ -1567,6 +1576,17 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
         p.fail("solver.routing", "unknown routing \"" + r +
                                      "\" (expected \"stiffness-aware\", \"per-element-prox\" or "
                                      "\"uniform\")");
+    }
+    if (j.contains("volume_weight")) {
+      const std::string v = p.string(j.at("volume_weight"), "solver.volume_weight");
+      if (!parse_volume_weight(v, sv.volume_weight))
+        p.fail("solver.volume_weight", "unknown volume weight \"" + v +
+                                           "\" (expected \"lambda\" or \"lame\")");
+      if (!has_volume_term(sv.energy))
+        p.fail("solver.volume_weight",
+               std::string("solver.energy \"") + to_string(sv.energy) +
+                   "\" has no Volume term (use \"" + to_string(EnergyKind::CorotatedVolume) +
+                   "\" or \"" + to_string(EnergyKind::CorotatedVolumeMuscle) + "\")");
     }
     if (j.contains("gate")) {
       const std::string g = p.string(j.at("gate"), "solver.gate");

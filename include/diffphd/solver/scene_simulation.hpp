@@ -74,11 +74,17 @@ struct SceneOverrides {
   std::optional<io::Routing> routing;
   std::optional<GateScale> gate;
   std::optional<SolverMethod> method;
+  /// Volume's weight (the scene's solver.volume_weight); only for energies with the Volume term
+  std::optional<VolumeWeight> volume_weight;
 };
 
-/// \brief The solver options a scene asks for, with `over` applied.
+/// \brief The solver options a scene asks for, with `over` applied. Throws InputError when
+/// `over` sets the volume weight to "lame" for an energy without the Volume term.
 inline SolverOptions scene_solver_options(const io::SceneSpec& scene, int dim,
                                           const SceneOverrides& over = {}) {
+  if (over.volume_weight == VolumeWeight::Lame && !io::has_volume_term(scene.solver.energy))
+    throw InputError(std::string("--volume-weight lame: solver.energy \"") +
+                     io::to_string(scene.solver.energy) + "\" has no Volume term");
   SolverOptions so;
   so.h = scene.h;
   so.alpha = scene.solver.alpha;
@@ -89,6 +95,7 @@ inline SolverOptions scene_solver_options(const io::SceneSpec& scene, int dim,
   so.eps_abs = scene.solver.eps_abs;
   so.max_iterations = over.max_iterations.value_or(scene.solver.max_iterations);
   so.routing = to_weight_routing(over.routing.value_or(scene.solver.routing));
+  so.volume_weight = over.volume_weight.value_or(scene.solver.volume_weight);
   so.gate_scale = over.gate.value_or(scene.solver.gate == io::Gate::StepRelative
                                          ? GateScale::StepRelative
                                          : scene.solver.gate == io::Gate::Paper ? GateScale::Paper

@@ -121,7 +121,7 @@ inline const char* to_string(InitialGuess g) {
   return "?";
 }
 
-/// \brief Options of the forward step. Changing h, alpha, beta0 or routing through
+/// \brief Options of the forward step. Changing h, alpha, beta0, routing or volume_weight through
 /// Solver::set_options() refactors A once; the other fields take effect at the next step.
 struct SolverOptions {
   double h = 1.0 / 60;  ///< time step (s)
@@ -150,6 +150,9 @@ struct SolverOptions {
   SolverMethod method = SolverMethod::Auto;  ///< iteration of a step (docs/solver.md, "Methods")
   MethodOptions newton;                     ///< Newton-Krylov, direct Newton and L-BFGS options
   WeightRouting routing = WeightRouting::StiffnessAware;
+  /// Volume's weight: lambda_e (default, DiffPD's) or Dim lambda_e (small-strain consistent
+  /// Lame parameters; docs/energies.md). No effect on energies without the Volume term.
+  VolumeWeight volume_weight = VolumeWeight::Lambda;
   InitialGuess initial_guess = InitialGuess::Inertial;  ///< first iterate of a step
   /// Convergence test of pd: the gradient test by default (eps_rel bounds the solver error);
   /// eq. (22) as printed and the step-relative increment gate remain as options. The other
@@ -219,7 +222,8 @@ struct as_energies<Energies<T...>> {
 /// \tparam Backend CpuBackend
 ///
 /// The factor of A (eq. 31) is computed in the constructor and again only when the materials,
-/// h, alpha, beta0, the routing, the muscle stiffness/fibres or the Dirichlet set change
+/// h, alpha, beta0, the routing, the volume weight, the muscle stiffness/fibres or the Dirichlet
+/// set change
 /// (factorization_count() counts them). Every step returns a StepReport; nothing non-finite
 /// is ever committed to the state.
 ///
@@ -342,12 +346,13 @@ class Solver {
     for (Index e = 0; e < ne_; ++e) params_[e].activation = activation_[e];
   }
 
-  /// Replaces the options. Refactors (once, at the next step) when h, alpha, beta0 or the
-  /// routing change.
+  /// Replaces the options. Refactors (once, at the next step) when h, alpha, beta0, the
+  /// routing or the volume weight change.
   void set_options(const SolverOptions& o) {
     validate_options(o);
     const bool matrix_change = o.h != options_.h || o.alpha != options_.alpha ||
-                               o.beta0 != options_.beta0 || o.routing != options_.routing;
+                               o.beta0 != options_.beta0 || o.routing != options_.routing ||
+                               o.volume_weight != options_.volume_weight;
     options_ = o;
     refresh_materials();
     if (matrix_change) stale_ = true;
@@ -839,6 +844,7 @@ class Solver {
       p.weight = muscle_k_[e];
       p.fibre = fibres_.row(e).transpose();
       p.activation = activation_[e];
+      p.volume_scale = volume_scale(options_.volume_weight, Dim);
       if (options_.routing == WeightRouting::PerElementProx)
         means_[e] = ProxMeans{mu[e], lambda[e], 2.0 * mu[e] + lambda[e]};
       w_[e] = EnergyPack::element_weight(p);
