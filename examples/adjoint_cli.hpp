@@ -19,6 +19,7 @@ struct GradcheckArgs {
   int directions = 3;
   FilterKind filter = FilterKind::TrustRegion;
   double eps_rel = 1e-10;
+  double fd_scale = 1;
 };
 
 struct BenchBackwardArgs {
@@ -87,9 +88,9 @@ nlohmann::json gradcheck_energy(const io::SceneSpec& scene, const GradcheckArgs&
   const optim::GradcheckResult r =
       io::scene_dimension(scene) == 2
           ? optim::gradcheck_scene<2, Energy>(scene, a.param, a.frames, a.filter, a.directions,
-                                              a.eps_rel)
+                                              a.eps_rel, 1, a.fd_scale)
           : optim::gradcheck_scene<3, Energy>(scene, a.param, a.frames, a.filter, a.directions,
-                                              a.eps_rel);
+                                              a.eps_rel, 1, a.fd_scale);
   nlohmann::json j;
   j["param"] = r.param;
   j["checked"] = r.checked;
@@ -101,6 +102,8 @@ nlohmann::json gradcheck_energy(const io::SceneSpec& scene, const GradcheckArgs&
   j["filter"] = to_string(a.filter);
   j["adjoint"] = r.adjoint;
   j["finite_difference"] = r.finite_difference;
+  j["finite_difference_2nd"] = r.finite_difference_2nd;
+  j["fd_scale"] = r.fd_scale;
   j["rel_err"] = r.rel_err;
   j["indefinite_element_steps"] = r.indefinite_element_steps;
   j["tau_counts"] = {{"0", r.tau_count[0]}, {"0.5", r.tau_count[1]}, {"1", r.tau_count[2]}};

@@ -244,7 +244,8 @@ int main(int argc, char** argv) {
   bool gc_json = false;
   auto* gradcheck = app.add_subcommand(
       "gradcheck",
-      "Compare the adjoint gradient of a scene rollout with central finite differences");
+      "Compare the adjoint gradient of a scene rollout with fourth-order central finite "
+      "differences");
   gradcheck->add_option("SCENE", gc_scene, "Scene file (JSON)")->required();
   gradcheck
       ->add_option("--param", gc.param,
@@ -258,6 +259,10 @@ int main(int argc, char** argv) {
   gradcheck->add_option("--filter", gc_filter, "none | clamp | abs | trust-region")
       ->check(CLI::IsMember({"none", "clamp", "abs", "trust-region"}));
   gradcheck->add_option("--eps-rel", gc.eps_rel, "Forward tolerance (default 1e-10)")
+      ->check(CLI::PositiveNumber);
+  gradcheck
+      ->add_option("--fd-scale", gc.fd_scale,
+                   "Factor on the finite-difference steps (default 1: ~1e-2 of each parameter)")
       ->check(CLI::PositiveNumber);
   gradcheck->add_option("--contrast", gc_contrast, "Stiffness factor of the contrast regions")
       ->check(CLI::PositiveNumber);

@@ -34,12 +34,14 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <initializer_list>
 #include <limits>
 #include <map>
 #include <optional>
+#include <random>
 #include <set>
 #include <sstream>
 #include <string>
@@ -202,6 +204,27 @@ struct VertexSelector {
   std::string json_path;       ///< e.g. "fixed[0].vertices", for error messages
 };
 
+/// \brief A material's "youngs_modulus_spread": {"decades": D, "seed": S}. Element e that gets
+/// the material has its Young's modulus (after the contrast factor) multiplied by
+/// 10^(D (u_e - 1/2)), so the nominal E is the geometric centre of a log-uniform field spanning
+/// D decades. u_e in [0, 1) is the top 53 bits of the (e + 1)-th draw of std::mt19937_64
+/// seeded by S (e the element index in the whole mesh), so a seed gives the same field on every
+/// platform and every material with that seed draws the same u_e for an element.
+struct YoungsModulusSpread {
+  bool enabled = false;    ///< the key was given (a region inherits the default material's)
+  double decades = 0;      ///< D, finite, in [0, 12]
+  std::uint64_t seed = 0;  ///< S, a non-negative integer
+};
+
+/// u_e of a spread: the top 53 bits of draw e (0-based) of mt19937_64(seed), in [0, 1), for
+/// e = 0 .. n-1.
+inline std::vector<double> spread_uniforms(std::uint64_t seed, Index n) {
+  std::mt19937_64 g(seed);
+  std::vector<double> u(static_cast<size_t>(n));
+  for (auto& x : u) x = static_cast<double>(g() >> 11) * 0x1.0p-53;
+  return u;
+}
+
 /// \brief One region assignment: the elements it selects get `material`. Assignments apply in
 /// order; a later one overrides an earlier one. Elements are selected by index list, by their
 /// centroid in a box or slab, or by the mesh's region attribute (the file's region ids, or the
@@ -222,6 +245,9 @@ struct RegionSpec {
   /// Pa, -, kg/m^3; keys missing from the file are the default material's. material.region is
   /// the label given to the elements: i + 1 for regions[i] (the default material has 0).
   Material material;
+  /// The material's "youngs_modulus_spread" (the default material's when the region's material
+  /// does not give one; {"decades": 0} turns it off)
+  YoungsModulusSpread spread;
   std::string json_path;  ///< "regions[i]"
 };
 
@@ -424,6 +450,7 @@ struct SceneSpec {
   /// One per body: the mesh object's "name", else "mesh" (a single object) or "mesh[i]".
   std::vector<std::string> body_names;
   Material default_material;        ///< region label 0
+  YoungsModulusSpread default_spread;  ///< the default material's "youngs_modulus_spread"
   std::vector<RegionSpec> regions;  ///< applied in order over the default material
   ContrastSpec contrast;
   std::vector<FixSpec> fixed;
@@ -668,9 +695,34 @@ class Parser {
   std::string file_;
 };
 
+/// A material's "youngs_modulus_spread" object (YoungsModulusSpread) at path.
+inline YoungsModulusSpread parse_youngs_spread(const Parser& p, const json& j,
+                                               const std::string& path) {
+  p.expect_object(j, path, {"decades", "seed"});
+  YoungsModulusSpread sp;
+  sp.enabled = true;
+  sp.decades = p.number(j, path, "decades");
+  if (!(sp.decades >= 0 && sp.decades <= 12))
+    p.fail(child(path, "decades"), "must lie in [0, 12], found " + format_number(sp.decades));
+  const long seed = p.integer(j, path, "seed");
+  if (seed < 0)
+    p.fail(child(path, "seed"), "must be a non-negative integer, found " + std::to_string(seed));
+  sp.seed = static_cast<std::uint64_t>(seed);
+  return sp;
+}
+
+/// A "material" object into m; with `spread`, the key "youngs_modulus_spread" is allowed and
+/// read into *spread (left as it is when the key is missing).
 inline void parse_material(const Parser& p, const json& j, const std::string& path, Material& m,
-                           bool require_youngs_modulus) {
-  p.expect_object(j, path, {"youngs_modulus", "poisson_ratio", "density"});
+                           bool require_youngs_modulus, YoungsModulusSpread* spread = nullptr) {
+  if (spread)
+    p.expect_object(j, path,
+                    {"youngs_modulus", "poisson_ratio", "density", "youngs_modulus_spread"});
+  else
+    p.expect_object(j, path, {"youngs_modulus", "poisson_ratio", "density"});
+  if (spread && j.contains("youngs_modulus_spread"))
+    *spread = parse_youngs_spread(p, j.at("youngs_modulus_spread"),
+                                  child(path, "youngs_modulus_spread"));
   if (require_youngs_modulus || j.contains("youngs_modulus"))
     m.youngs_modulus = p.number(j, path, "youngs_modulus");
   if (j.contains("poisson_ratio")) m.poisson_ratio = p.number(j, path, "poisson_ratio");
@@ -1317,7 +1369,8 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
   const char* per_axis = dim == 3 ? "one per axis of a 3D scene" : "one per axis of a 2D scene";
 
   // Materials and regions.
-  parse_material(p, p.required(root, "", "material"), "material", s.default_material, true);
+  parse_material(p, p.required(root, "", "material"), "material", s.default_material, true,
+                 &s.default_spread);
   s.default_material.region = 0;
   std::set<std::string> names;
   if (root.contains("regions")) {
@@ -1345,8 +1398,9 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
       reg.body_name = sel.body_name;
       reg.num_bodies = sel.num_bodies;
       reg.material = s.default_material;
+      reg.spread = s.default_spread;
       parse_material(p, p.required(r, path, "material"), child(path, "material"), reg.material,
-                     false);
+                     false, &reg.spread);
       reg.material.region = static_cast<int>(i) + 1;
       s.regions.push_back(std::move(reg));
     }
@@ -2164,12 +2218,40 @@ MaterialField build_materials(const SceneSpec& scene, const SimplicialMesh<Dim>&
   } catch (const InputError& e) {
     throw InputError("material (with contrast factor): " + e.message(), scene.file);
   }
+  // The spread each element's material carries (nullptr: none) and where it was given.
+  std::vector<const YoungsModulusSpread*> spread(static_cast<size_t>(mesh.num_elements()),
+                                                 &scene.default_spread);
+  std::vector<const std::string*> where(spread.size());
+  const std::string default_path = "material";
+  std::fill(where.begin(), where.end(), &default_path);
   for (const RegionSpec& r : scene.regions) {
     const std::vector<Index> sel = select_elements(r, mesh, file_regions, scene.file, element_body);
     try {
       field.assign(sel, scaled(r.material, r.name));
     } catch (const InputError& e) {
       throw InputError(r.json_path + ".material (with contrast factor): " + e.message(),
+                       scene.file);
+    }
+    for (Index e : sel) {
+      spread[e] = &r.spread;
+      where[e] = &r.json_path;
+    }
+  }
+  // Per-element Young's modulus spreads (YoungsModulusSpread), one draw sequence per seed.
+  std::map<std::uint64_t, std::vector<double>> uniforms;
+  for (Index e = 0; e < mesh.num_elements(); ++e) {
+    const YoungsModulusSpread& sp = *spread[e];
+    if (!sp.enabled || sp.decades == 0) continue;
+    auto it = uniforms.find(sp.seed);
+    if (it == uniforms.end())
+      it = uniforms.emplace(sp.seed, spread_uniforms(sp.seed, mesh.num_elements())).first;
+    Material m = field[e];
+    m.youngs_modulus *= std::pow(10.0, sp.decades * (it->second[e] - 0.5));
+    try {
+      field.set(e, m);
+    } catch (const InputError& err) {
+      throw InputError(*where[e] + (where[e] == &default_path ? "" : ".material") +
+                           " (with youngs_modulus_spread): " + err.message(),
                        scene.file);
     }
   }
