@@ -78,6 +78,22 @@ std::set<int> labels(const MaterialField& m) {
   return std::set<int>(r.begin(), r.end());
 }
 
+
+/// Loads `path` and expects an InputError that names the file first ("PATH: ...") and contains
+/// every one of `expect`.
+void check_load_error(const std::string& path, const std::vector<std::string>& expect) {
+  try {
+    io::load_scene(path);
+    FAIL("no InputError");
+  } catch (const InputError& e) {
+    const std::string what = e.what();
+    INFO(what);
+    CHECK(e.file() == path);
+    CHECK(what.rfind(path + ": ", 0) == 0);
+    for (const std::string& x : expect) CHECK_THAT(what, Contains(x));
+  }
+}
+
 }  // namespace
 
 TEST_CASE("shipped scene: demo", "[scene]") {
@@ -674,16 +690,7 @@ TEST_CASE("scene muscles: bad input names the file and the JSON path", "[scene][
   for (const Case& c : cases) {
     const std::string path = muscle_scene(c.muscles, c.energy, "bad_" + std::to_string(n++));
     INFO(c.muscles << " with energy " << c.energy);
-    try {
-      io::load_scene(path);
-      FAIL("no InputError");
-    } catch (const InputError& e) {
-      const std::string what = e.what();
-      INFO(what);
-      CHECK(e.file() == path);
-      CHECK(what.rfind(path + ": ", 0) == 0);
-      for (const char* x : c.expect) CHECK_THAT(what, Contains(x));
-    }
+    check_load_error(path, {c.expect.begin(), c.expect.end()});
   }
   remove_muscle_scenes();
 }
@@ -906,15 +913,7 @@ TEST_CASE("scene: bad youngs_modulus_spread values name the JSON path", "[scene]
   for (const Case& c : cases) {
     const std::string path = spread_scene(c.material, c.regions, "bad");
     INFO(c.material << " " << c.regions);
-    try {
-      io::load_scene(path);
-      FAIL("no InputError");
-    } catch (const InputError& e) {
-      const std::string what = e.what();
-      INFO(what);
-      CHECK(what.rfind(path + ": ", 0) == 0);
-      CHECK_THAT(what, Contains(c.expect));
-    }
+    check_load_error(path, {c.expect});
   }
   remove_spread_scenes();
 }
