@@ -256,11 +256,7 @@ class AdjointOperator {
 
   /// out = A_s (x) I x (no masking).
   void apply_A(const VectorX& x, VectorX& out) const {
-    const Index nv = s_.mesh().num_vertices();
-    using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Dim, Eigen::RowMajor>;
-    out.resize(x.size());
-    Eigen::Map<RowMat>(out.data(), nv, Dim).noalias() =
-        s_.system().matrix() * Eigen::Map<const RowMat>(x.data(), nv, Dim);
+    detail::apply_kron<Dim>(s_.system().matrix(), x, out);
   }
 
   /// out = (A - K^T) x on the free DoFs (x zero on the fixed DoFs).

@@ -29,6 +29,17 @@ Mat<Dim> element_gradient(const SimplicialMesh<Dim>& mesh, Index e, const Vector
     F += Eigen::Map<const Vec<Dim>>(x.data() + Dim * T(e, a)) * g.col(a).transpose();
   return F;
 }
+
+/// out = (A (x) I_Dim) x for a flat (#V * Dim, row-major) vector x: the sparse product of the
+/// PD matrix with every coordinate at once (no masking).
+template <int Dim, class Matrix>
+void apply_kron(const Matrix& A, const VectorX& x, VectorX& out) {
+  const Index nv = A.rows();
+  using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Dim, Eigen::RowMajor>;
+  out.resize(x.size());
+  Eigen::Map<RowMat>(out.data(), nv, Dim).noalias() =
+      A * Eigen::Map<const RowMat>(x.data(), nv, Dim);
+}
 }  // namespace detail
 
 /// \brief Phi(q) of one implicit-Euler PD step of a Solver (borrowed), for a given start state.
@@ -118,11 +129,7 @@ class PdPotential {
 
   /// out = A_s (x) I x (no masking).
   void apply_A(const Vector& x, Vector& out) const {
-    const Index nv = s_.mesh().num_vertices();
-    using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Dim, Eigen::RowMajor>;
-    out.resize(x.size());
-    Eigen::Map<RowMat>(out.data(), nv, Dim).noalias() =
-        s_.system().matrix() * Eigen::Map<const RowMat>(x.data(), nv, Dim);
+    detail::apply_kron<Dim>(s_.system().matrix(), x, out);
   }
 
   /// Per-element Hessian blocks at q: H_e = A-part - sum_k w_k dp_k/dF, projected on the PSD
