@@ -26,7 +26,8 @@ cmake -S "$root/tests/fuzz" -B "$build" -G Ninja -DCMAKE_CXX_COMPILER="$cxx" >/d
 ninja -C "$build" -j"$jobs" "${harnesses[@]}"
 echo "fuzz.sh: built ${#harnesses[@]} harnesses in $((SECONDS - start)) s"
 
-# Seeds: the files of tests/data (good and bad) each harness reads, plus tests/fuzz/seeds.
+# Seeds: the files of tests/data (good and bad) each harness reads, plus tests/fuzz/seeds;
+# tests/fuzz/NAME.dict (fuzz_NAME) is passed as a libFuzzer dictionary.
 seeds() {
   local d=$root/tests/data
   case $1 in
@@ -44,11 +45,13 @@ failed=()
 for h in "${harnesses[@]}"; do
   corpus=$build/corpus/$h artifacts=$build/artifacts/$h log=$build/logs/$h.log
   mkdir -p "$corpus" "$artifacts" "$(dirname "$log")"
-  seeds "$h" | while read -r f; do cp -n "$f" "$corpus/" ; done
+  seeds "$h" | while read -r f; do cp -n "$f" "$corpus/" 2>/dev/null || true; done
   echo "fuzz.sh: $h for $seconds s (corpus $(ls "$corpus" | wc -l) files, log $log)"
+  dict=$root/tests/fuzz/${h#fuzz_}.dict opts=()
+  [[ -f $dict ]] && opts+=(-dict="$dict")
   rc=0
   "$build/$h" -max_total_time="$seconds" -max_len=8192 -timeout=10 -rss_limit_mb=2048 \
-    -print_final_stats=1 -artifact_prefix="$artifacts/" "$corpus" >"$log" 2>&1 || rc=$?
+    -print_final_stats=1 -artifact_prefix="$artifacts/" "${opts[@]}" "$corpus" >"$log" 2>&1 || rc=$?
   grep -E '^stat::number_of_executed_units|^stat::peak_rss_mb' "$log" | sed "s/^/  $h: /" || true
   if ((rc != 0)); then
     failed+=("$h")

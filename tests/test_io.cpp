@@ -399,6 +399,9 @@ TEST_CASE("Readers: counts beyond the limits or the file size are rejected befor
        "3000000 elements declared here cannot fit", msh3},
       {"huge_entities41.msh", "huge_entities41.msh:5:",
        "9223372036854775807 entities of dimension 0 declared here cannot fit", msh3},
+      // Tags that do not fit in an int used to wrap silently (4294967298 became region 2).
+      {"physical_int.msh", "physical_int.msh:21:",
+       "the physical tag does not fit in an int: '4294967298'", msh3},
       {"huge_faces.off", "huge_faces.off:2:",
        "100000000000 faces declared here exceed the limit 100000000", off},
       {"size_vertices.off", "size_vertices.off:2:",

@@ -334,6 +334,11 @@ TEST_CASE("scene: bounded resources (io::limits()) and the long-run override",
   check_load_error(kBad + "bad_huge_cells.json",
                    {"mesh.cells[0]: must be <= 100000000 (io::limits().max_elements), found "
                     "4294967297"});
+  check_load_error(kBad + "bad_region_int.json",
+                   {"regions[0].mesh_region: a region id must fit in an int, found 4294967303"});
+  // Found by fuzz_scene: a number too large for a double escaped as a nlohmann exception.
+  check_load_error(kBad + "bad_number_overflow.json",
+                   {"invalid JSON: number overflow parsing '1.0e33333333333'"});
   check_load_error(kBad + "bad_deep.json",
                    {"objects and arrays nested deeper than 64 levels (io::limits().max_json_depth)"});
   // Counts that fit an int pass the parser; the builder rejects the mesh before allocating.

@@ -1,6 +1,6 @@
 #pragma once
 /// \file fuzz_common.hpp
-/// \brief Shared by the libFuzzer harnesses (see tests/fuzz/README.md): the readers take paths,
+/// \brief Shared by the libFuzzer harnesses (see docs/reliability.md): the readers take paths,
 /// so every input is written to a file in a per-process temporary folder; InputError is the
 /// only exception a reader may throw on bad input, anything else (another exception, a crash, a
 /// sanitizer report, a broken invariant) is a finding.

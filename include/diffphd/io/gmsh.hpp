@@ -274,7 +274,7 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
           r.expect_size(3 + static_cast<size_t>(ntags) + Dim + 1,
                         "element tag, type, " + std::to_string(ntags) + " tags, " +
                             std::to_string(Dim + 1) + " node tags");
-          const int physical = ntags >= 1 ? static_cast<int>(r.integer(3, "the physical tag")) : 0;
+          const int physical = ntags >= 1 ? r.int_integer(3, "the physical tag") : 0;
           const long entity = ntags >= 2 ? r.integer(4, "the elementary tag") : 0;
           add_element(3 + static_cast<size_t>(ntags), tag, entity, physical);
         }
@@ -332,7 +332,7 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
           r.expect_size(at + 1 + static_cast<size_t>(nphys), "physical tags", true);
           if (d == Dim)
             entity_physical[tag] =
-                nphys > 0 ? static_cast<int>(r.integer(at + 1, "a physical tag")) : 0;
+                nphys > 0 ? r.int_integer(at + 1, "a physical tag") : 0;
         }
       }
       detail::expect_gmsh_end(r, "$EndEntities", header_line);
@@ -346,7 +346,7 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
         detail::next_gmsh_data(r, "$PhysicalNames", header_line, n, "names", i);
         r.expect_size(3, "dimension, physical tag, \"name\"", true);
         const long dim = r.integer(0, "the dimension of the physical group");
-        const int tag = static_cast<int>(r.integer(1, "the physical tag"));
+        const int tag = r.int_integer(1, "the physical tag");
         std::string name;
         for (size_t k = 2; k < r.size(); ++k) name += (k > 2 ? " " : "") + std::string(r.token(k));
         if (name.size() >= 2 && name.front() == '"' && name.back() == '"')

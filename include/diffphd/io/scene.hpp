@@ -922,7 +922,10 @@ inline ElementSelector parse_element_selector(const Parser& p, const json& obj,
     sel.slab = parse_slab(p, obj.at(k), child(path, k), dim);
   } else {
     sel.kind = ElementSelector::Kind::MeshRegion;
-    sel.mesh_region = static_cast<int>(p.integer(obj.at(k), child(path, k)));
+    const long id = p.integer(obj.at(k), child(path, k));
+    if (id < std::numeric_limits<int>::min() || id > std::numeric_limits<int>::max())
+      p.fail(child(path, k), "a region id must fit in an int, found " + std::to_string(id));
+    sel.mesh_region = static_cast<int>(id);
   }
   return sel;
 }
@@ -1842,6 +1845,13 @@ inline SceneSpec load_scene(const std::string& path, std::optional<double> contr
     std::string msg = e.what();
     const auto pos = msg.find("parse error");
     if (pos != std::string::npos) msg = msg.substr(pos);
+    throw InputError("invalid JSON: " + msg, path);
+  } catch (const nlohmann::json::exception& e) {
+    // Not a syntax error, e.g. out_of_range 406 "number overflow parsing '1e999'" (found by
+    // fuzz_scene; it used to escape as a nlohmann exception).
+    std::string msg = e.what();
+    const auto pos = msg.find("] ");
+    if (pos != std::string::npos) msg = msg.substr(pos + 2);
     throw InputError("invalid JSON: " + msg, path);
   }
   return scene_detail::parse(scene_detail::Parser(path), root, contrast);

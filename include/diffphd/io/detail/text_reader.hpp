@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdint>
 #include <fstream>
+#include <limits>
 #include <string>
 #include <string_view>
 #include <system_error>
@@ -120,6 +121,14 @@ class TextReader {
     if (r.ec != std::errc() || r.ptr != t.data() + t.size())
       fail("expected an integer for " + what + ", found '" + std::string(tokens_[i]) + "'");
     return v;
+  }
+
+  /// Token i as an integer that fits in an int (region ids, physical tags).
+  int int_integer(size_t i, const std::string& what) const {
+    const long v = integer(i, what);
+    if (v < std::numeric_limits<int>::min() || v > std::numeric_limits<int>::max())
+      fail(what + " does not fit in an int: '" + std::string(tokens_[i]) + "'");
+    return static_cast<int>(v);
   }
 
   /// Bytes of the file after the current line (0 at the end of the file).
