@@ -41,6 +41,8 @@ seeds() {
   ls "$root/tests/fuzz/seeds/${1#fuzz_}"/* 2>/dev/null || true
 }
 
+export TMPDIR=$build/tmp  # the harnesses' input files (and the folders of crashed runs)
+mkdir -p "$TMPDIR"
 failed=()
 for h in "${harnesses[@]}"; do
   corpus=$build/corpus/$h artifacts=$build/artifacts/$h log=$build/logs/$h.log

@@ -19,10 +19,14 @@
 
 namespace fuzz {
 
-/// The per-process temporary folder (created on first use, removed at exit).
+/// The per-process temporary folder under $TMPDIR (else /tmp), created on first use and
+/// removed at a normal exit (scripts/fuzz.sh points TMPDIR into its build folder, where the
+/// folders of crashed runs stay).
 inline const std::string& temp_dir() {
   static const std::string dir = [] {
-    char name[] = "/tmp/diffphd-fuzz-XXXXXX";
+    const char* tmp = std::getenv("TMPDIR");
+    std::string pattern = std::string(tmp && *tmp ? tmp : "/tmp") + "/diffphd-fuzz-XXXXXX";
+    char* name = pattern.data();
     if (!mkdtemp(name)) {
       std::perror("mkdtemp");
       std::abort();
