@@ -367,6 +367,84 @@ TEST_CASE("OFF and OBJ: bad input names the file and line", "[io][off][obj][erro
   });
 }
 
+// ---- Bounded resources (io::limits(), docs/reliability.md) ------------------------------
+
+TEST_CASE("Readers: counts beyond the limits or the file size are rejected before allocating",
+          "[io][errors][limits]") {
+  const auto tet3 = [](const std::string& p) { io::read_tetgen<3>(p); };
+  const auto msh3 = [](const std::string& p) { io::read_gmsh<3>(p); };
+  const auto off = [](const std::string& p) { io::read_off(p); };
+  const auto obj = [](const std::string& p) { io::read_obj(p); };
+  check_bad_cases({
+      // A 35-byte file claiming 10^11 points.
+      {"huge_points.node", "huge_points.node:1:",
+       "100000000000 points declared here exceed the limit 100000000 "
+       "(io::limits().max_vertices)",
+       tet3},
+      {"size_points.node", "size_points.node:1:",
+       "5000000 points declared here cannot fit in the 24 bytes that follow", tet3},
+      {"huge_attr.node", "huge_attr.node:1:",
+       "9223372036854775807 point attributes declared here cannot fit", tet3},
+      {"huge_elements.ele", "huge_elements.ele:1:",
+       "100000000000 elements declared here exceed the limit 100000000 "
+       "(io::limits().max_elements)",
+       tet3},
+      {"huge_eattr.ele", "huge_eattr.ele:1:",
+       "9223372036854775807 element attributes declared here cannot fit", tet3},
+      {"huge_nodes22.msh", "huge_nodes22.msh:5:",
+       "100000000000 nodes declared here exceed the limit 100000000", msh3},
+      {"size_block41.msh", "size_block41.msh:6:",
+       "50000000 nodes in the block declared here cannot fit", msh3},
+      {"size_elements22.msh", "size_elements22.msh:5:",
+       "3000000 elements declared here cannot fit", msh3},
+      {"huge_entities41.msh", "huge_entities41.msh:5:",
+       "9223372036854775807 entities of dimension 0 declared here cannot fit", msh3},
+      // Tags that do not fit in an int used to wrap silently (4294967298 became region 2).
+      {"physical_int.msh", "physical_int.msh:21:",
+       "the physical tag does not fit in an int: '4294967298'", msh3},
+      {"huge_faces.off", "huge_faces.off:2:",
+       "100000000000 faces declared here exceed the limit 100000000", off},
+      {"size_vertices.off", "size_vertices.off:2:",
+       "50000000 vertices declared here cannot fit in the 6 bytes that follow", off},
+      // Found while reviewing read_obj for its harness: index 4294967297 wrapped to 0 when
+      // stored as an int (a silently wrong face), and -LONG_MIN overflowed.
+      {"obj_huge_index.obj", "obj_huge_index.obj:4:",
+       "vertex index 4294967297 is above the limit of 100000000 vertices", obj},
+      {"obj_min_index.obj", "obj_min_index.obj:4:",
+       "relative vertex index -9223372036854775808 reaches before the first vertex", obj},
+  });
+  // mesh_dimension peeks at the same files without reading the counts.
+  CHECK(io::mesh_dimension(kBad + "huge_points.node") == 3);
+}
+
+TEST_CASE("Readers: io::limits() can be lowered and raised", "[io][limits]") {
+  io::Limits& lim = io::limits();
+  const io::Limits saved = lim;
+  lim.max_vertices = 3;
+  CHECK_THROWS_WITH(io::read_tetgen<3>(kData + "two"),
+                    Contains("two.node:2:") &&
+                        Contains("5 points declared here exceed the limit 3 "
+                                 "(io::limits().max_vertices)"));
+  CHECK_THROWS_WITH(io::read_off(kData + "tetra.off"),
+                    Contains("tetra.off:3:") && Contains("4 vertices declared here exceed the limit 3"));
+  CHECK_THROWS_WITH(io::read_obj(kData + "square_mixed.obj"),
+                    Contains("more than 3 vertices (io::limits().max_vertices)"));
+  lim.max_vertices = saved.max_vertices;
+  lim.max_elements = 1;
+  CHECK_THROWS_WITH(io::read_gmsh<3>(kData + "two22.msh"),
+                    Contains("declared here exceed the limit 1 (io::limits().max_elements)"));
+  CHECK_THROWS_WITH(make_box(Vec<3>(0, 0, 0), Vec<3>(1, 1, 1), Eigen::Vector3i(1, 1, 1)),
+                    Contains("make_box: the mesh would have 8 vertices and 6 elements") &&
+                        Contains("(io::limits().max_vertices and max_elements)"));
+  lim = saved;
+  CHECK(io::read_tetgen<3>(kData + "two").num_vertices() == 5);
+  // Generators check their size before an int overflows.
+  CHECK_THROWS_WITH(make_box(Vec<3>(0, 0, 0), Vec<3>(1, 1, 1), Eigen::Vector3i(100000, 100000, 1)),
+                    Contains("make_box: the mesh would have 2e+10 vertices"));
+  CHECK_THROWS_WITH(make_sphere(1.0, 1 << 30), Contains("make_sphere: the mesh would have"));
+  CHECK_THROWS_WITH(make_bar(1e12, 1, 1, 1'000'000'000), Contains("make_bar: the mesh would have"));
+}
+
 TEST_CASE("write_surface_obj: deformed boundary in 3D, flat triangles in 2D", "[io][obj]") {
   TempDir tmp;
   const auto box = make_box(Vec<3>(0, 0, 0), Vec<3>(1, 1, 1), Eigen::Vector3i(2, 2, 2));

@@ -325,6 +325,68 @@ TEST_CASE("scene: build-time errors name the file and the JSON path", "[scene][e
       "regions[2]: elements[2] = 100000 is out of range");
 }
 
+TEST_CASE("scene: bounded resources (io::limits()) and the long-run override",
+          "[scene][errors][limits]") {
+  check_load_error(kBad + "bad_long_run.json",
+                   {"time.substeps: frames x substeps = 100000 x 100 = 10000000 solver steps, "
+                    "more than 1000000 (io::limits().max_steps)",
+                    "set \"allow_long_run\": true in \"time\""});
+  check_load_error(kBad + "bad_huge_cells.json",
+                   {"mesh.cells[0]: must be <= 100000000 (io::limits().max_elements), found "
+                    "4294967297"});
+  check_load_error(kBad + "bad_region_int.json",
+                   {"regions[0].mesh_region: a region id must fit in an int, found 4294967303"});
+  // Found by fuzz_scene: a number too large for a double escaped as a nlohmann exception.
+  check_load_error(kBad + "bad_number_overflow.json",
+                   {"invalid JSON: number overflow parsing '1.0e33333333333'"});
+  check_load_error(kBad + "bad_deep.json",
+                   {"objects and arrays nested deeper than 64 levels (io::limits().max_json_depth)"});
+  // Counts that fit an int pass the parser; the builder rejects the mesh before allocating.
+  const io::SceneSpec big = io::load_scene(kBad + "bad_big_mesh.json");
+  CHECK_THROWS_WITH(io::build_mesh<3>(big),
+                    Contains("mesh: make_box: the mesh would have 1e+12 vertices"));
+
+  // A scratch scene: the long run is accepted with the override, and the override is checked.
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("diffphd_test_scene_limits_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  auto scene = [&](const std::string& time) {
+    const std::string file = (dir / "limits.json").string();
+    std::ofstream(file) << R"({"mesh": {"generator": "box", "lo": [0, 0, 0], "hi": [1, 1, 1],
+                                        "cells": [1, 1, 1]},
+                              "material": {"youngs_modulus": 1e5}, "time": )"
+                        << time << "}\n";
+    return file;
+  };
+  const io::SceneSpec ok =
+      io::load_scene(scene(R"({"h": 0.001, "frames": 100000, "substeps": 100, "allow_long_run": true})"));
+  CHECK(ok.output.frames == 100000);
+  CHECK(ok.output.substeps == 100);
+  check_load_error(scene(R"({"h": 0.001, "frames": 2000000})"),
+                   {"time.frames: frames x substeps = 2000000 x 1 = 2000000 solver steps"});
+  check_load_error(scene(R"({"h": 0.01, "frames": 1, "allow_long_run": 1})"),
+                   {"time.allow_long_run: expected true or false, found a number"});
+
+  // Lowered limits: JSON arrays, the scene file size and the step count.
+  io::Limits& lim = io::limits();
+  const io::Limits saved = lim;
+  lim.max_json_array = 2;
+  check_load_error(kBad + "good_small.json",
+                   {"the array under \"lo\" has more than 2 entries (io::limits().max_json_array)"});
+  lim = saved;
+  lim.max_scene_bytes = 100;
+  check_load_error(kBad + "good_small.json",
+                   {"the scene file has", "bytes, more than the limit 100 "
+                                          "(io::limits().max_scene_bytes)"});
+  lim = saved;
+  lim.max_steps = 5;
+  check_load_error(kBad + "good_small.json", {"time.frames: frames x substeps = 10 x 1 = 10"});
+  lim = saved;
+  CHECK(io::load_scene(kBad + "good_small.json").output.frames == 10);
+  fs::remove_all(dir);
+}
+
 TEST_CASE("branching plant: one connected component, positive volumes", "[plant]") {
   const int levels = GENERATE(1, 2, 3);
   const int branches = GENERATE(2, 3);

@@ -29,6 +29,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -36,6 +37,7 @@
 #include "../core/errors.hpp"
 #include "../core/mesh.hpp"
 #include "../core/types.hpp"
+#include "limits.hpp"
 
 namespace diffphd {
 
@@ -51,6 +53,29 @@ inline void check_count(const char* fn, const char* name, long value, long minim
   if (value < minimum)
     throw InputError(std::string(fn) + ": " + name + " = " + std::to_string(value) +
                      " must be >= " + std::to_string(minimum));
+}
+
+/// Throws when a generated mesh of `vertices` vertices and `elements` elements would exceed
+/// io::limits(); the counts are doubles so that huge parameters cannot overflow before the check.
+inline void check_size(const char* fn, double vertices, double elements) {
+  const io::Limits& lim = io::limits();
+  if (vertices <= static_cast<double>(lim.max_vertices) &&
+      elements <= static_cast<double>(lim.max_elements))
+    return;
+  std::ostringstream os;
+  os.precision(3);
+  os << fn << ": the mesh would have " << vertices << " vertices and " << elements
+     << " elements, more than the limits " << lim.max_vertices << " and " << lim.max_elements
+     << " (io::limits().max_vertices and max_elements)";
+  throw InputError(os.str());
+}
+
+/// The vertex and simplex counts of a grid of cells[0] x ... cells[Dim-1] cells.
+template <int Dim>
+void check_grid_size(const char* fn, const std::array<double, Dim>& cells) {
+  double vertices = 1, elements = Dim == 3 ? 6 : 2;
+  for (double c : cells) vertices *= c + 1, elements *= c;
+  check_size(fn, vertices, elements);
 }
 
 /// Swaps the last two vertices of every negatively oriented element, then builds the mesh.
@@ -163,6 +188,7 @@ inline SimplicialMesh<3> make_box(const Vec<3>& lo, const Vec<3>& hi,
     generators_detail::check_positive("make_box", "hi - lo", hi[d] - lo[d]);
     generators_detail::check_count("make_box", "cells", cells[d]);
   }
+  generators_detail::check_grid_size<3>("make_box", {1.0 * cells[0], 1.0 * cells[1], 1.0 * cells[2]});
   return generators_detail::oriented_mesh<3>(
       generators_detail::grid_vertices<3>(lo, hi, cells),
       generators_detail::grid_simplices<3>(cells, [](const Eigen::Vector3i&) { return 0; }));
@@ -180,6 +206,7 @@ inline SimplicialMesh<2> make_rectangle(const Vec<2>& lo, const Vec<2>& hi,
     generators_detail::check_positive("make_rectangle", "hi - lo", hi[d] - lo[d]);
     generators_detail::check_count("make_rectangle", "cells", cells[d]);
   }
+  generators_detail::check_grid_size<2>("make_rectangle", {1.0 * cells[0], 1.0 * cells[1]});
   return generators_detail::oriented_mesh<2>(
       generators_detail::grid_vertices<2>(lo, hi, cells),
       generators_detail::grid_simplices<2>(
@@ -208,9 +235,9 @@ inline SimplicialMesh<3> make_bar(double length, double width, double height,
   generators_detail::check_positive("make_bar", "height", height);
   generators_detail::check_count("make_bar", "cells_along_length", cells_along_length);
   const double h = length / cells_along_length;
-  const Eigen::Vector3i cells(cells_along_length,
-                              std::max(1, static_cast<int>(std::lround(width / h))),
-                              std::max(1, static_cast<int>(std::lround(height / h))));
+  const double across = std::max(1.0, std::round(width / h)), up = std::max(1.0, std::round(height / h));
+  generators_detail::check_grid_size<3>("make_bar", {1.0 * cells_along_length, across, up});
+  const Eigen::Vector3i cells(cells_along_length, static_cast<int>(across), static_cast<int>(up));
   return make_box(Vec<3>(0, 0, 0), Vec<3>(length, width, height), cells);
 }
 
@@ -238,6 +265,7 @@ inline SimplicialMesh<3> make_sheet(double width, double depth, double thickness
 inline SimplicialMesh<2> make_disk(double radius, int resolution) {
   generators_detail::check_positive("make_disk", "radius", radius);
   generators_detail::check_count("make_disk", "resolution", resolution);
+  generators_detail::check_grid_size<2>("make_disk", {2.0 * resolution, 2.0 * resolution});
   const Eigen::Vector2i n = Eigen::Vector2i::Constant(2 * resolution);
   VertexMatrix<2> X = generators_detail::grid_vertices<2>(Vec<2>(-1, -1), Vec<2>(1, 1), n);
   generators_detail::cube_to_ball<2>(X, radius);
@@ -253,6 +281,8 @@ inline SimplicialMesh<2> make_disk(double radius, int resolution) {
 inline SimplicialMesh<3> make_sphere(double radius, int resolution) {
   generators_detail::check_positive("make_sphere", "radius", radius);
   generators_detail::check_count("make_sphere", "resolution", resolution);
+  generators_detail::check_grid_size<3>("make_sphere",
+                                        {2.0 * resolution, 2.0 * resolution, 2.0 * resolution});
   const Eigen::Vector3i n = Eigen::Vector3i::Constant(2 * resolution);
   VertexMatrix<3> X = generators_detail::grid_vertices<3>(Vec<3>(-1, -1, -1), Vec<3>(1, 1, 1), n);
   generators_detail::cube_to_ball<3>(X, radius);
@@ -276,6 +306,9 @@ inline SimplicialMesh<3> make_torus(double major_radius, double minor_radius, in
                                     major_radius - minor_radius);
   generators_detail::check_count("make_torus", "ring_segments", ring_segments, 3);
   generators_detail::check_count("make_torus", "tube_resolution", tube_resolution);
+  const double tube = 2.0 * tube_resolution;
+  generators_detail::check_size("make_torus", (tube + 1) * (tube + 1) * ring_segments,
+                                6 * tube * tube * ring_segments);
   const SimplicialMesh<2> disk = make_disk(minor_radius, tube_resolution);
   const auto& D = disk.rest_positions();
   const auto& Tri = disk.elements();

@@ -30,6 +30,7 @@
 #include "../core/errors.hpp"
 #include "../core/mesh.hpp"
 #include "detail/text_reader.hpp"
+#include "limits.hpp"
 #include "mesh_with_regions.hpp"
 
 namespace diffphd::io {
@@ -136,7 +137,8 @@ inline bool gmsh_holds_tetrahedra(const std::string& path) {
 /// \return mesh (#V by Dim positions, #E by Dim+1 elements), region (#E physical tags, 0 for
 ///   none), vertex_id (#V node tags), region_names (from $PhysicalNames, dimension Dim)
 /// \throws InputError naming the file and 1-based line: missing file, binary or unsupported
-///   version, truncated sections, wrong counts, non-numeric tokens, NaN/Inf coordinates,
+///   version, truncated sections, wrong counts, counts above io::limits() or beyond what the
+///   file size can hold (checked before allocating), non-numeric tokens, NaN/Inf coordinates,
 ///   repeated node tags, undefined node tags, degenerate or inverted elements.
 template <int Dim>
 MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
@@ -204,6 +206,7 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
         r.expect_size(1, "the number of nodes");
         const long n = r.integer(0, "the number of nodes");
         if (n < 0) r.fail("negative number of nodes");
+        r.check_count(n, "nodes", 8, limits().max_vertices, "max_vertices");
         nodes.reserve(n);
         for (long i = 0; i < n; ++i) {
           detail::next_gmsh_data(r, "$Nodes", header_line, n, "nodes", i);
@@ -216,6 +219,8 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
         const long blocks = r.integer(0, "the number of entity blocks");
         const long n = r.integer(1, "the number of nodes");
         if (blocks < 0 || n < 0) r.fail("negative count in the $Nodes header");
+        r.check_count(blocks, "entity blocks", 8);
+        r.check_count(n, "nodes", 8, limits().max_vertices, "max_vertices");
         nodes.reserve(n);
         long total = 0;
         for (long b = 0; b < blocks; ++b) {
@@ -226,6 +231,7 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
           const long m = r.integer(3, "the number of nodes in the block");
           const long block_line = r.line();
           if (m < 0) r.fail("negative number of nodes in the block");
+          r.check_count(m, "nodes in the block", 8, limits().max_vertices, "max_vertices");
           std::vector<long> tags(m);
           for (long i = 0; i < m; ++i) {
             detail::next_gmsh_data(r, "$Nodes", block_line, m, "nodes in the block", i);
@@ -255,6 +261,7 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
         r.expect_size(1, "the number of elements");
         const long n = r.integer(0, "the number of elements");
         if (n < 0) r.fail("negative number of elements");
+        r.check_count(n, "elements", 6, limits().max_elements, "max_elements");
         for (long i = 0; i < n; ++i) {
           detail::next_gmsh_data(r, "$Elements", header_line, n, "elements", i);
           r.expect_size(3, "element tag, type, number of tags, ...", true);
@@ -267,7 +274,7 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
           r.expect_size(3 + static_cast<size_t>(ntags) + Dim + 1,
                         "element tag, type, " + std::to_string(ntags) + " tags, " +
                             std::to_string(Dim + 1) + " node tags");
-          const int physical = ntags >= 1 ? static_cast<int>(r.integer(3, "the physical tag")) : 0;
+          const int physical = ntags >= 1 ? r.int_integer(3, "the physical tag") : 0;
           const long entity = ntags >= 2 ? r.integer(4, "the elementary tag") : 0;
           add_element(3 + static_cast<size_t>(ntags), tag, entity, physical);
         }
@@ -276,6 +283,8 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
         const long blocks = r.integer(0, "the number of entity blocks");
         const long n = r.integer(1, "the number of elements");
         if (blocks < 0 || n < 0) r.fail("negative count in the $Elements header");
+        r.check_count(blocks, "entity blocks", 8);
+        r.check_count(n, "elements", 4, limits().max_elements, "max_elements");
         long total = 0;
         for (long b = 0; b < blocks; ++b) {
           detail::next_gmsh_data(r, "$Elements", header_line, blocks, "entity blocks", b);
@@ -285,6 +294,7 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
           const long m = r.integer(3, "the number of elements in the block");
           const long block_line = r.line();
           if (m < 0) r.fail("negative number of elements in the block");
+          r.check_count(m, "elements in the block", 4, limits().max_elements, "max_elements");
           note_type(type);
           for (long i = 0; i < m; ++i) {
             detail::next_gmsh_data(r, "$Elements", block_line, m, "elements in the block", i);
@@ -305,7 +315,11 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
       const long header_line = r.line();
       r.expect_size(4, "numPoints numCurves numSurfaces numVolumes");
       std::array<long, 4> count;
-      for (int d = 0; d < 4; ++d) count[d] = r.integer(d, "an entity count");
+      for (int d = 0; d < 4; ++d) {
+        count[d] = r.integer(d, "an entity count");
+        if (count[d] < 0) r.fail("negative entity count");
+        r.check_count(count[d], "entities of dimension " + std::to_string(d), d == 0 ? 10 : 16);
+      }
       for (int d = 0; d < 4; ++d) {
         for (long i = 0; i < count[d]; ++i) {
           detail::next_gmsh_data(r, "$Entities", header_line, count[d],
@@ -318,7 +332,7 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
           r.expect_size(at + 1 + static_cast<size_t>(nphys), "physical tags", true);
           if (d == Dim)
             entity_physical[tag] =
-                nphys > 0 ? static_cast<int>(r.integer(at + 1, "a physical tag")) : 0;
+                nphys > 0 ? r.int_integer(at + 1, "a physical tag") : 0;
         }
       }
       detail::expect_gmsh_end(r, "$EndEntities", header_line);
@@ -326,11 +340,13 @@ MeshWithRegions<Dim> read_gmsh_with_regions(const std::string& path) {
       r.require_next("the $PhysicalNames header");
       const long header_line = r.line();
       const long n = r.integer(0, "the number of physical names");
+      if (n < 0) r.fail("negative number of physical names");
+      r.check_count(n, "physical names", 6);
       for (long i = 0; i < n; ++i) {
         detail::next_gmsh_data(r, "$PhysicalNames", header_line, n, "names", i);
         r.expect_size(3, "dimension, physical tag, \"name\"", true);
         const long dim = r.integer(0, "the dimension of the physical group");
-        const int tag = static_cast<int>(r.integer(1, "the physical tag"));
+        const int tag = r.int_integer(1, "the physical tag");
         std::string name;
         for (size_t k = 2; k < r.size(); ++k) name += (k > 2 ? " " : "") + std::string(r.token(k));
         if (name.size() >= 2 && name.front() == '"' && name.back() == '"')

@@ -5,6 +5,7 @@
 
 #include "generators.hpp"
 #include "gmsh.hpp"
+#include "limits.hpp"
 #include "mesh_with_regions.hpp"
 #include "read_mesh.hpp"
 #include "surface.hpp"

@@ -128,13 +128,15 @@ inline PlantMesh make_branching_plant(const PlantParams& p = {}) {
   }
   lo.y() = 0;  // the flat base
   Eigen::Vector3i n;
+  const Vec<3> cells = ((hi - lo) / c).array().ceil().max(1.0);
+  plant_detail::check(cells.prod() <= 20'000'000,
+                      "the grid has more than 20000000 cells: increase cell_size");
+  generators_detail::check_grid_size<3>("make_branching_plant", {cells[0], cells[1], cells[2]});
   for (int d = 0; d < 3; ++d) {
-    n[d] = std::max(1, static_cast<int>(std::ceil((hi[d] - lo[d]) / c)));
+    n[d] = static_cast<int>(cells[d]);
     if (d != 1) lo[d] = 0.5 * (lo[d] + hi[d]) - 0.5 * n[d] * c;  // centre the grid in x, z
   }
   const long ncells = static_cast<long>(n[0]) * n[1] * n[2];
-  plant_detail::check(ncells <= 20'000'000,
-                      "the grid has " + std::to_string(ncells) + " cells: increase cell_size");
   auto cell_id = [&](int i, int j, int k) { return i + static_cast<long>(n[0]) * (j + n[1] * k); };
   std::vector<int> label(ncells, -1);  // lowest capsule level containing the centre, -1 if none
   for (const auto& b : caps) {

@@ -57,6 +57,7 @@
 #include "../contact/types.hpp"
 #include "../energy/volume.hpp"
 #include "generators.hpp"
+#include "limits.hpp"
 #include "mesh_with_regions.hpp"
 #include "plant.hpp"
 #include "read_mesh.hpp"
@@ -921,7 +922,10 @@ inline ElementSelector parse_element_selector(const Parser& p, const json& obj,
     sel.slab = parse_slab(p, obj.at(k), child(path, k), dim);
   } else {
     sel.kind = ElementSelector::Kind::MeshRegion;
-    sel.mesh_region = static_cast<int>(p.integer(obj.at(k), child(path, k)));
+    const long id = p.integer(obj.at(k), child(path, k));
+    if (id < std::numeric_limits<int>::min() || id > std::numeric_limits<int>::max())
+      p.fail(child(path, k), "a region id must fit in an int, found " + std::to_string(id));
+    sel.mesh_region = static_cast<int>(id);
   }
   return sel;
 }
@@ -1020,10 +1024,19 @@ inline MeshSpec parse_mesh_object(const Parser& p, const json& j, const std::str
       throw InputError(msg, p.file());
     }
   };
-  auto count = [&](const char* key, long minimum, std::optional<long> def = {}) {
-    const long v = p.integer(j, path, key, def);
-    p.at_least(v, minimum, child(path, key));
+  // A cell count above the element limit cannot give a mesh within io::limits() (and would
+  // not fit in an int); the builders check the whole mesh.
+  const long max_count = static_cast<long>(
+      std::min<std::int64_t>(limits().max_elements, std::numeric_limits<int>::max()));
+  auto bounded = [&](long v, long minimum, const std::string& at) {
+    p.at_least(v, minimum, at);
+    if (v > max_count)
+      p.fail(at, "must be <= " + std::to_string(max_count) + " (io::limits().max_elements), found " +
+                     std::to_string(v));
     return static_cast<int>(v);
+  };
+  auto count = [&](const char* key, long minimum, std::optional<long> def = {}) {
+    return bounded(p.integer(j, path, key, def), minimum, child(path, key));
   };
   auto length = [&](const char* key) {
     const double v = p.number(j, path, key);
@@ -1106,12 +1119,14 @@ inline MeshSpec parse_mesh_object(const Parser& p, const json& j, const std::str
       p.positive(q.trunk_length, child(path, "trunk_length"));
       q.trunk_radius = p.number(j, path, "trunk_radius", d.trunk_radius);
       p.positive(q.trunk_radius, child(path, "trunk_radius"));
-      q.levels = static_cast<int>(p.integer(j, path, "levels", d.levels));
-      if (q.levels < 1 || q.levels > 3)
-        p.fail(child(path, "levels"), "must be 1, 2 or 3, found " + std::to_string(q.levels));
-      q.branches = static_cast<int>(p.integer(j, path, "branches", d.branches));
-      if (q.branches != 2 && q.branches != 3)
-        p.fail(child(path, "branches"), "must be 2 or 3, found " + std::to_string(q.branches));
+      const long levels = p.integer(j, path, "levels", d.levels);
+      if (levels < 1 || levels > 3)
+        p.fail(child(path, "levels"), "must be 1, 2 or 3, found " + std::to_string(levels));
+      q.levels = static_cast<int>(levels);
+      const long branches = p.integer(j, path, "branches", d.branches);
+      if (branches != 2 && branches != 3)
+        p.fail(child(path, "branches"), "must be 2 or 3, found " + std::to_string(branches));
+      q.branches = static_cast<int>(branches);
       q.length_ratio = p.number(j, path, "length_ratio", d.length_ratio);
       if (!(q.length_ratio > 0 && q.length_ratio <= 1))
         p.fail(child(path, "length_ratio"),
@@ -1157,9 +1172,8 @@ inline MeshSpec parse_mesh_object(const Parser& p, const json& j, const std::str
                "expected " + std::to_string(n) + " cell counts, found " + std::to_string(c.size()));
       m.cells.resize(n);
       for (int a = 0; a < n; ++a) {
-        const long v = p.integer(c[a], item(child(path, "cells"), a));
-        p.at_least(v, 1, item(child(path, "cells"), a));
-        m.cells[a] = static_cast<int>(v);
+        const std::string at = item(child(path, "cells"), a);
+        m.cells[a] = bounded(p.integer(c[a], at), 1, at);
       }
     }
   }
@@ -1492,9 +1506,9 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
         if (dim == 3) {
           dr.axis = p.axis(d, path, "axis", 3);
         } else {
-          dr.axis = static_cast<int>(p.integer(d, path, "axis", 2L));
-          if (dr.axis != 2)
+          if (p.integer(d, path, "axis", 2L) != 2)
             p.fail(child(path, "axis"), "a 2D twist turns about the plane normal: axis must be 2");
+          dr.axis = 2;
         }
         if (d.contains("center"))
           dr.center = p.vector(d.at("center"), child(path, "center"), dim, per_axis);
@@ -1587,7 +1601,7 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
   // Time.
   {
     const json& t = p.required(root, "", "time");
-    p.expect_object(t, "time", {"h", "frames", "substeps"});
+    p.expect_object(t, "time", {"h", "frames", "substeps", "allow_long_run"});
     s.h = p.number(t, "time", "h");
     p.positive(s.h, "time.h");
     const long frames = p.integer(t, "time", "frames");
@@ -1596,6 +1610,15 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
     if (substeps <= 0) p.fail("time.substeps", "must be > 0, found " + std::to_string(substeps));
     if (frames > 100'000'000 || substeps > 100'000)
       p.fail("time", "frames or substeps is implausibly large");
+    const bool long_run = p.boolean(t, "time", "allow_long_run", false);
+    const std::int64_t max_steps = limits().max_steps;
+    if (frames * substeps > max_steps && !long_run)
+      p.fail(t.contains("substeps") ? "time.substeps" : "time.frames",
+             "frames x substeps = " + std::to_string(frames) + " x " + std::to_string(substeps) +
+                 " = " + std::to_string(frames * substeps) + " solver steps, more than " +
+                 std::to_string(max_steps) +
+                 " (io::limits().max_steps): set \"allow_long_run\": true in \"time\" if the "
+                 "run is meant to be that long");
     s.output.frames = static_cast<int>(frames);
     s.output.substeps = static_cast<int>(substeps);
   }
@@ -1754,6 +1777,14 @@ void check_dimension(const SceneSpec& s, const char* fn) {
 inline SceneSpec load_scene(const std::string& path, std::optional<double> contrast = {}) {
   std::ifstream in(path, std::ios::in | std::ios::binary);
   if (!in) throw InputError("cannot open scene file for reading", path);
+  const Limits& lim = limits();
+  in.seekg(0, std::ios::end);
+  const std::int64_t bytes = std::max<std::int64_t>(0, static_cast<std::int64_t>(in.tellg()));
+  in.seekg(0, std::ios::beg);
+  if (bytes > lim.max_scene_bytes)
+    throw InputError("the scene file has " + std::to_string(bytes) + " bytes, more than the limit " +
+                         std::to_string(lim.max_scene_bytes) + " (io::limits().max_scene_bytes)",
+                     path);
   nlohmann::json root;
   // Duplicate keys are errors (JSON parsers keep the last one in silence).
   struct Frame {
@@ -1761,8 +1792,37 @@ inline SceneSpec load_scene(const std::string& path, std::optional<double> contr
     std::string name, last_key;
   };
   std::vector<Frame> stack;
+  // Open objects and arrays (entries counted for arrays), to bound array sizes and nesting.
+  struct Container {
+    bool array;
+    std::int64_t entries;
+    std::string name;
+  };
+  std::vector<Container> open;
   auto callback = [&](int, nlohmann::json::parse_event_t event, nlohmann::json& parsed) {
     using E = nlohmann::json::parse_event_t;
+    if (event == E::value || event == E::object_start || event == E::array_start) {
+      if (!open.empty() && open.back().array && ++open.back().entries > lim.max_json_array)
+        throw InputError("the array" +
+                             (open.back().name.empty() ? std::string()
+                                                       : " under \"" + open.back().name + "\"") +
+                             " has more than " + std::to_string(lim.max_json_array) +
+                             " entries (io::limits().max_json_array)",
+                         path);
+    }
+    if (event == E::object_start || event == E::array_start) {
+      if (static_cast<int>(open.size()) >= lim.max_json_depth)
+        throw InputError("objects and arrays nested deeper than " +
+                             std::to_string(lim.max_json_depth) +
+                             " levels (io::limits().max_json_depth)",
+                         path);
+      const std::string name = stack.empty() ? std::string() : stack.back().last_key;
+      open.push_back({event == E::array_start, 0, open.empty() || !open.back().array
+                                                      ? name
+                                                      : open.back().name});
+    } else if ((event == E::object_end || event == E::array_end) && !open.empty()) {
+      open.pop_back();
+    }
     if (event == E::object_start) {
       stack.push_back({{}, stack.empty() ? std::string() : stack.back().last_key, {}});
     } else if (event == E::object_end) {
@@ -1785,6 +1845,13 @@ inline SceneSpec load_scene(const std::string& path, std::optional<double> contr
     std::string msg = e.what();
     const auto pos = msg.find("parse error");
     if (pos != std::string::npos) msg = msg.substr(pos);
+    throw InputError("invalid JSON: " + msg, path);
+  } catch (const nlohmann::json::exception& e) {
+    // Not a syntax error, e.g. out_of_range 406 "number overflow parsing '1e999'" (found by
+    // fuzz_scene; it used to escape as a nlohmann exception).
+    std::string msg = e.what();
+    const auto pos = msg.find("] ");
+    if (pos != std::string::npos) msg = msg.substr(pos + 2);
     throw InputError("invalid JSON: " + msg, path);
   }
   return scene_detail::parse(scene_detail::Parser(path), root, contrast);

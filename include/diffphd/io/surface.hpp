@@ -7,7 +7,10 @@
 /// orientation is kept. OFF indices are 0-based; OBJ indices are 1-based, negative ones count
 /// back from the last vertex defined so far, and the forms i, i/t, i//n and i/t/n are accepted.
 
+#include <algorithm>
 #include <array>
+#include <climits>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -16,6 +19,7 @@
 #include "../core/errors.hpp"
 #include "../core/mesh.hpp"
 #include "detail/text_reader.hpp"
+#include "limits.hpp"
 
 namespace diffphd::io {
 
@@ -45,7 +49,8 @@ inline SurfaceMesh make_surface(const std::vector<std::array<double, 3>>& v,
 /// \param[in] path  the .off file
 /// \return V (#V by 3) and F (#F by 3, polygons fan-triangulated)
 /// \throws InputError naming the file and line: missing file, bad header, truncated file, wrong
-///   counts, non-numeric tokens, NaN/Inf coordinates, out-of-range or repeated indices in a face
+///   counts, counts above io::limits() or beyond what the file size can hold (checked before
+///   allocating), non-numeric tokens, NaN/Inf coordinates, out-of-range or repeated indices in a face
 inline SurfaceMesh read_off(const std::string& path) {
   detail::TextReader r(path);
   r.require_next("the OFF header");
@@ -65,6 +70,8 @@ inline SurfaceMesh read_off(const std::string& path) {
   const long nf = r.integer(first + 1, "the number of faces");
   if (nv <= 0 || nf < 0)
     r.fail("bad counts: " + std::to_string(nv) + " vertices, " + std::to_string(nf) + " faces");
+  r.check_count(nv, "vertices", 6, limits().max_vertices, "max_vertices");
+  r.check_count(nf, "faces", 8, limits().max_elements, "max_elements");
   std::vector<std::array<double, 3>> V(nv);
   for (long v = 0; v < nv; ++v) {
     if (!r.next())
@@ -111,16 +118,22 @@ inline SurfaceMesh read_off(const std::string& path) {
 /// \param[in] path  the .obj file
 /// \return V (#V by 3; a 'v' record's optional w is ignored) and F (#F by 3)
 /// \throws InputError naming the file and line: missing file, non-numeric tokens, NaN/Inf,
-///   index 0, out-of-range or repeated indices in a face, faces with fewer than 3 vertices
+///   more vertices, triangles or larger indices than io::limits() allows, index 0, out-of-range or repeated indices in a face, faces with fewer than 3 vertices
 inline SurfaceMesh read_obj(const std::string& path) {
   detail::TextReader r(path);
   std::vector<std::array<double, 3>> V;
   std::vector<std::array<int, 3>> F;
   std::vector<long> face_line;  // positive indices may refer to vertices defined later
   std::vector<long> idx;
+  // Indices are stored as int: larger ones (and more vertices than the limit) are errors.
+  const long max_vertices =
+      static_cast<long>(std::min<std::int64_t>(limits().max_vertices, INT_MAX));
   while (r.next()) {
     const std::string_view key = r.token(0);
     if (key == "v") {
+      if (static_cast<long>(V.size()) >= max_vertices)
+        r.fail("more than " + std::to_string(max_vertices) +
+               " vertices (io::limits().max_vertices)");
       if (r.size() != 4 && r.size() != 5 && r.size() != 7)
         r.fail("a 'v' record needs x y z [w] (or x y z r g b), found " +
                std::to_string(r.size() - 1) + " values");
@@ -146,8 +159,11 @@ inline SurfaceMesh read_obj(const std::string& path) {
           r.fail("expected a vertex index in '" + std::string(t) + "'");
         }
         if (v == 0) r.fail("vertex index 0 is invalid (OBJ indices start at 1)");
+        if (v > max_vertices)
+          r.fail("vertex index " + std::to_string(v) + " is above the limit of " +
+                 std::to_string(max_vertices) + " vertices (io::limits().max_vertices)");
         if (v < 0) {
-          if (-v > static_cast<long>(V.size()))
+          if (v < -static_cast<long>(V.size()))
             r.fail("relative vertex index " + std::to_string(v) +
                    " reaches before the first vertex (" + std::to_string(V.size()) +
                    " defined so far)");
@@ -159,6 +175,9 @@ inline SurfaceMesh read_obj(const std::string& path) {
           if (w == v) r.fail("face: vertex " + std::to_string(v + 1) + " is repeated");
         idx.push_back(v);
       }
+      if (static_cast<std::int64_t>(F.size() + idx.size() - 2) > limits().max_elements)
+        r.fail("more than " + std::to_string(limits().max_elements) +
+               " triangles (io::limits().max_elements)");
       for (size_t i = 1; i + 1 < idx.size(); ++i) {
         F.push_back(
             {static_cast<int>(idx[0]), static_cast<int>(idx[i]), static_cast<int>(idx[i + 1])});

@@ -23,6 +23,7 @@
 #include "../core/errors.hpp"
 #include "../core/mesh.hpp"
 #include "detail/text_reader.hpp"
+#include "limits.hpp"
 #include "mesh_with_regions.hpp"
 
 namespace diffphd::io {
@@ -45,7 +46,8 @@ inline std::string tetgen_basename(const std::string& path) {
 /// \return mesh (#V by Dim positions, #E by Dim+1 elements, 0-based), region (#E; 0 when the
 ///   .ele file has no attribute), vertex_id (#V point numbers of the .node file)
 /// \throws InputError naming the file and 1-based line: missing file, truncated file, wrong
-///   counts, non-numeric tokens, NaN/Inf coordinates, point numbers out of sequence, vertex
+///   counts, counts above io::limits() or beyond what the file size can hold (checked before
+///   allocating), non-numeric tokens, NaN/Inf coordinates, point numbers out of sequence, vertex
 ///   indices out of range or repeated in an element, degenerate or inverted elements.
 template <int Dim>
 MeshWithRegions<Dim> read_tetgen_with_regions(const std::string& path) {
@@ -73,10 +75,13 @@ MeshWithRegions<Dim> read_tetgen_with_regions(const std::string& path) {
               "> or mesh_dimension())");
   if (nattr < 0) node.fail("negative number of point attributes");
   if (nmark != 0 && nmark != 1) node.fail("the boundary marker field must be 0 or 1");
+  node.check_count(nattr, "point attributes", 2);  // every point line holds them
+  const size_t node_fields = 1 + Dim + static_cast<size_t>(nattr + nmark);
+  node.check_count(nv, "points", 2 * static_cast<long>(node_fields), limits().max_vertices,
+                   "max_vertices");
 
   VertexMatrix<Dim> X(nv, Dim);
   std::vector<long> vertex_id(nv);
-  const size_t node_fields = 1 + Dim + static_cast<size_t>(nattr + nmark);
   long index_base = 0;
   for (long v = 0; v < nv; ++v) {
     if (!node.next())
@@ -122,6 +127,8 @@ MeshWithRegions<Dim> read_tetgen_with_regions(const std::string& path) {
              " nodes, the header says " + std::to_string(npe) +
              " (second-order elements are not supported)");
   if (eattr < 0) ele.fail("negative number of element attributes");
+  ele.check_count(eattr, "element attributes", 2);  // every element line holds them
+  ele.check_count(ne, "elements", 2 * (1 + npe + eattr), limits().max_elements, "max_elements");
 
   ElementMatrix<Dim> T(ne, Dim + 1);
   std::vector<int> region(ne, 0);

@@ -7,13 +7,16 @@
 #include <cctype>
 #include <charconv>
 #include <cmath>
+#include <cstdint>
 #include <fstream>
+#include <limits>
 #include <string>
 #include <string_view>
 #include <system_error>
 #include <vector>
 
 #include "../../core/errors.hpp"
+#include "../limits.hpp"
 
 namespace diffphd::io::detail {
 
@@ -38,12 +41,19 @@ inline std::string strip_extension(const std::string& path) {
 /// numbers; every failure throws InputError("file:line: ...").
 class TextReader {
  public:
+  /// Counts check_count() does not compare with the file size.
+  static constexpr long kSmallCount = 1024;
+
   /// \param[in] path  file to read; throws InputError when it cannot be opened
   /// \param[in] comment  character that starts a comment running to the end of the line, or '\0'
   explicit TextReader(std::string path, char comment = '#')
       : path_(std::move(path)), comment_(comment) {
     in_.open(path_, std::ios::in | std::ios::binary);
     if (!in_) throw InputError("cannot open file for reading", path_);
+    in_.seekg(0, std::ios::end);
+    const auto end = in_.tellg();
+    size_ = end > 0 ? static_cast<long long>(end) : 0;
+    in_.seekg(0, std::ios::beg);
   }
 
   /// Advances to the next line holding at least one token (comments and blank lines are
@@ -113,6 +123,39 @@ class TextReader {
     return v;
   }
 
+  /// Token i as an integer that fits in an int (region ids, physical tags).
+  int int_integer(size_t i, const std::string& what) const {
+    const long v = integer(i, what);
+    if (v < std::numeric_limits<int>::min() || v > std::numeric_limits<int>::max())
+      fail(what + " does not fit in an int: '" + std::string(tokens_[i]) + "'");
+    return static_cast<int>(v);
+  }
+
+  /// Bytes of the file after the current line (0 at the end of the file).
+  long long bytes_left() const {
+    const auto pos = in_.rdbuf()->pubseekoff(0, std::ios::cur, std::ios::in);
+    return pos < 0 ? 0 : std::max<long long>(0, size_ - static_cast<long long>(pos));
+  }
+
+  /// Checks a count n >= 0 that the current line declares, before anything is allocated for
+  /// it: n must not exceed `limit` (the io::Limits member named `limit_name`; none when that is
+  /// null), and n entries of at least `bytes_each` bytes (two per number: a digit and a
+  /// separator; the last entry may lack its newline) must fit in what is left of the file.
+  /// Counts up to kSmallCount pass the size test (allocating for them is harmless) so that a
+  /// mildly truncated file gets the reader's own message saying where the data ends. `what`
+  /// names the entries ("points").
+  void check_count(long n, const std::string& what, long bytes_each, std::int64_t limit = 0,
+                   const char* limit_name = nullptr) const {
+    if (limit_name && n > limit)
+      fail(std::to_string(n) + " " + what + " declared here exceed the limit " +
+           std::to_string(limit) + " (io::limits()." + limit_name + ")");
+    const long long left = bytes_left();
+    if (n > kSmallCount && n > (left + 1) / bytes_each)
+      fail(std::to_string(n) + " " + what + " declared here cannot fit in the " +
+           std::to_string(left) + " bytes that follow (at least " + std::to_string(bytes_each) +
+           " each): truncated or corrupt file");
+  }
+
   /// Token i as an integer written as an integer or an integral real ("3", "3.0", "-1e0").
   long integral_real(size_t i, const std::string& what) const {
     const double v = real(i, what);
@@ -141,6 +184,7 @@ class TextReader {
   std::string path_;
   char comment_;
   std::ifstream in_;
+  long long size_ = 0;
   std::string buffer_;
   std::vector<std::string_view> tokens_;
   long line_ = 0;
