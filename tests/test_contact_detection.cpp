@@ -1199,3 +1199,50 @@ TEST_CASE("detection timing", "[.slow][contact][detect]") {
     std::printf("  worst_penetration: %.3f ms\n", ms(t2, clock::now()) / reps);
   }
 }
+
+TEST_CASE("ContactOptions::validate refuses what the scene parser refuses, by name", "[contact]") {
+  REQUIRE_NOTHROW(ContactOptions{}.validate());
+  auto expect = [](ContactOptions o, const std::string& key) {
+    try {
+      o.validate();
+      FAIL("accepted a bad " << key);
+    } catch (const InputError& e) {
+      INFO(e.what());
+      CHECK(std::string(e.what()).find(key) != std::string::npos);
+    }
+  };
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  ContactOptions o;
+  o.contact_distance = 0;
+  expect(o, "contact.distance");
+  o = {};
+  o.contact_distance = nan;
+  expect(o, "contact.distance");
+  o = {};
+  o.mesh_friction = -0.1;
+  expect(o, "contact.friction");
+  o = {};
+  o.mesh_restitution = 1.5;
+  expect(o, "contact.restitution");
+  o = {};
+  o.ncp_tolerance = 0;
+  expect(o, "contact.ncp_tolerance");
+  o = {};
+  o.ncp_max_iterations = 0;
+  expect(o, "contact.ncp_max_iterations");
+  o = {};
+  o.penetration_tolerance = -1;
+  expect(o, "contact.penetration_tolerance");
+  o = {};
+  o.max_redetections = -1;
+  expect(o, "contact.max_redetections");
+  o = {};
+  o.restitution_threshold = nan;
+  expect(o, "contact.restitution_threshold");
+  o = {};
+  o.ncp_krylov_min_rows = 0;
+  expect(o, "contact.ncp_krylov_min_rows");
+  o = {};
+  o.ncp_krylov_tolerance = 2;
+  expect(o, "ncp_krylov_tolerance");
+}

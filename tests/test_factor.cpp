@@ -32,8 +32,10 @@ long long fill_with(const SparseMatrix& A, const Eigen::VectorXi& perm_new_to_ol
   Eigen::PermutationMatrix<Eigen::Dynamic, Eigen::Dynamic, int> P(perm_new_to_old);
   // Eigen: (P^T A P)(i, j) = A(perm[i], perm[j]) for P.indices() = perm.
   SparseMatrix B = P.transpose() * A * P;
-  Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower, Eigen::NaturalOrdering<int>> ldlt;
-  ldlt.analyzePattern(B);
+  // Factorised, not only analysed: matrixL() asserts a numeric factorization (the sanitizer
+  // build, with Eigen's assertions on, caught the analysed-only read).
+  Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower, Eigen::NaturalOrdering<int>> ldlt(B);
+  REQUIRE(ldlt.info() == Eigen::Success);
   return ldlt.matrixL().nestedExpression().nonZeros();
 }
 }  // namespace
@@ -155,4 +157,21 @@ TEST_CASE("SparseFactor::solve checks the block height", "[linalg][factor][error
   REQUIRE(f.info() == FactorStatus::Success);
   CHECK_THROWS_AS(f.solve(MatrixX::Ones(A.rows() + 1, 1)), InputError);
   CHECK(f.solve(MatrixX(A.rows(), 0)).cols() == 0);
+}
+
+TEST_CASE("SparseFactor::nnz_L is known after the symbolic analysis alone", "[linalg][factor]") {
+  // The Eigen backend read it through matrixL(), which asserts a numeric factorization
+  // (found by scripts/test-sanitize.sh, where Eigen's assertions are on).
+  const SparseMatrix A = pd_matrix<2>(10, 1e3);
+  for (FactorBackend backend : {FactorBackend::Cholmod, FactorBackend::EigenLDLT}) {
+    INFO("backend " << to_string(backend));
+    SparseFactor f(backend);
+    CHECK(f.nnz_L() == 0);
+    f.analyze_pattern(A);
+    const long long symbolic = f.nnz_L();
+    CHECK(symbolic >= A.rows());
+    f.factorize(A);
+    REQUIRE(f.info() == FactorStatus::Success);
+    CHECK(f.nnz_L() == symbolic);
+  }
 }

@@ -55,6 +55,7 @@ class NcpContact {
                   const std::vector<char>& fully_fixed, const VertexMatrix<Dim>& q_start,
                   const VertexMatrix<Dim>& q_pred, double t0, double t1) {
     stats_ = ContactStepStats{};
+    options.validate();
     for (size_t i = 0; i < colliders.size(); ++i) colliders[i].validate(static_cast<int>(i));
     mesh_ = &mesh;
     sys_ = &sys;

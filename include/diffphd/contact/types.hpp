@@ -6,6 +6,7 @@
 
 #include <array>
 #include <cmath>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -130,6 +131,41 @@ struct ContactOptions {
   /// Relative residual of the GMRES solves (inexact Newton; the Armijo search guards it).
   double ncp_krylov_tolerance = 1e-6;
   int ncp_krylov_max_iterations = 400;
+
+  /// Throws InputError naming the option (as the scene file's "contact" key where there is
+  /// one) when a value is one the scene parser rejects: the same rules for options set in code.
+  void validate() const {
+    auto fail = [](const std::string& key, const std::string& rule, double v) {
+      std::ostringstream os;
+      os << "ContactOptions: " << key << " " << rule << ", found " << v;
+      throw InputError(os.str());
+    };
+    if (!(contact_distance > 0 && std::isfinite(contact_distance)))
+      fail("contact_distance (contact.distance)", "must be finite and > 0", contact_distance);
+    if (!(mesh_friction >= 0 && std::isfinite(mesh_friction)))
+      fail("mesh_friction (contact.friction)", "must be finite and >= 0", mesh_friction);
+    if (!(mesh_restitution >= 0 && mesh_restitution <= 1))
+      fail("mesh_restitution (contact.restitution)", "must lie in [0, 1]", mesh_restitution);
+    if (!(ncp_tolerance > 0 && std::isfinite(ncp_tolerance)))
+      fail("ncp_tolerance (contact.ncp_tolerance)", "must be finite and > 0", ncp_tolerance);
+    if (ncp_max_iterations < 1)
+      fail("ncp_max_iterations (contact.ncp_max_iterations)", "must be >= 1", ncp_max_iterations);
+    if (!(penetration_tolerance > 0 && std::isfinite(penetration_tolerance)))
+      fail("penetration_tolerance (contact.penetration_tolerance)", "must be finite and > 0",
+           penetration_tolerance);
+    if (max_redetections < 0)
+      fail("max_redetections (contact.max_redetections)", "must be >= 0", max_redetections);
+    if (!(restitution_threshold >= 0 && std::isfinite(restitution_threshold)))
+      fail("restitution_threshold (contact.restitution_threshold)", "must be finite and >= 0",
+           restitution_threshold);
+    if (ncp_krylov_min_rows < 1)
+      fail("ncp_krylov_min_rows (contact.ncp_krylov_min_rows)", "must be >= 1",
+           ncp_krylov_min_rows);
+    if (!(ncp_krylov_tolerance > 0 && ncp_krylov_tolerance < 1))
+      fail("ncp_krylov_tolerance", "must lie in (0, 1)", ncp_krylov_tolerance);
+    if (ncp_krylov_max_iterations < 1)
+      fail("ncp_krylov_max_iterations", "must be >= 1", ncp_krylov_max_iterations);
+  }
 };
 
 /// \brief Contact diagnostics of one step (paper Sec. 6.3), in StepReport::contact.

@@ -274,12 +274,17 @@ class CholmodFactorImpl final : public FactorImpl {
 
 class EigenLDLTFactorImpl final : public FactorImpl {
  public:
-  using Solver = Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower, Eigen::MetisOrdering<Index>>;
+  /// SimplicialLDLT whose symbolic nonzero count can be read before the numeric factorization
+  /// (matrixL() asserts a factorization; the strict lower pattern is sized by analyzePattern).
+  struct Solver : Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower, Eigen::MetisOrdering<Index>> {
+    long long symbolic_nonzeros() const { return static_cast<long long>(this->m_matrix.nonZeros()); }
+  };
 
   std::string analyze(const SparseMatrix& A) override {
     solver_ = std::make_unique<Solver>();
     solver_->analyzePattern(A);
     if (solver_->info() != Eigen::Success) return "Eigen::SimplicialLDLT::analyzePattern failed";
+    lnz_ = solver_->symbolic_nonzeros() + A.rows();
     return {};
   }
 
@@ -324,13 +329,11 @@ class EigenLDLTFactorImpl final : public FactorImpl {
     return solver_->permutationPinv().indices();
   }
 
-  long long nnz_L() const override {
-    return static_cast<long long>(solver_->matrixL().nestedExpression().nonZeros()) +
-           solver_->vectorD().size();
-  }
+  long long nnz_L() const override { return lnz_; }
 
  private:
   std::unique_ptr<Solver> solver_;
+  long long lnz_ = 0;
 };
 
 }  // namespace detail

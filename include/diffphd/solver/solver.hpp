@@ -301,12 +301,19 @@ class Solver {
   void add_driver(Driver<Dim> d) { bc_.add_driver(std::move(d), positions_); }
   /// Position of driven vertex j of driver d at time t (as the solver prescribes it).
   Vec<Dim> driver_position(int d, Index j, double t) const { return bc_.driver_position(d, j, t); }
-  /// External forces (N per vertex, #V by Dim), held until changed. Not validated here: a
-  /// non-finite force makes the next step report NonFinite.
+  /// External forces (N per vertex, #V by Dim), held until changed. Throws InputError naming
+  /// the first vertex and axis of a non-finite force (the scene parser's rule for "forces").
   void set_external_forces(const VertexMatrix<Dim>& f) {
     if (f.rows() != nv_)
       throw InputError("set_external_forces: " + std::to_string(f.rows()) + " rows, expected " +
                        std::to_string(nv_));
+    if (!f.allFinite()) {
+      for (Index v = 0; v < f.rows(); ++v)
+        for (int k = 0; k < Dim; ++k)
+          if (!std::isfinite(f(v, k)))
+            throw InputError("set_external_forces: vertex " + std::to_string(v) + ", axis " +
+                             std::to_string(k) + ": the force must be finite");
+    }
     f_ext_ = f;
   }
   /// Sets positions and velocities (#V by Dim each). Fixed (non-driver) vertices keep the
