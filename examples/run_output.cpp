@@ -293,9 +293,8 @@ json RunFiles::read_checkpoint(std::string& state) const {
   std::ifstream in(path, std::ios::binary);
   if (!in)
     throw InputError("--resume " + dir_ +
-                         ": no checkpoint (the run was not started with --out there, or was "
-                         "stopped before its first checkpoint: run it again without --resume)",
-                     path);
+                     ": no checkpoint.bin (the run was not started with --out there, or was "
+                     "stopped before its first checkpoint: run it again without --resume)");
   const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   std::uint64_t n = 0;
   if (bytes.size() < sizeof kRunMagic + sizeof n ||

@@ -92,7 +92,7 @@ expect_error() {  # pattern, then the arguments of diffphd run
   grep -Eq "$pattern" "$work/out.txt" || fail "run $*: '$(cat "$work/out.txt")' lacks '$pattern'"
 }
 mkdir -p "$work/empty"
-expect_error "error: --resume .*empty: no checkpoint" "$scene" --resume "$work/empty"
+expect_error "error: --resume .*empty: no checkpoint.bin" "$scene" --resume "$work/empty"
 expect_error "error: --resume .*: no such folder" "$scene" --resume "$work/missing"
 run "$scene" --frames 12 --checkpoint-every 4 --out "$work/E" --stop-after-frame 5
 expect_error "checkpoint belongs to another scene" "$other" --resume "$work/E"
