@@ -3,6 +3,7 @@
 // adjoint_dispatch.cpp picks one by the scene's "solver.energy".
 #pragma once
 
+#include <functional>
 #include <iostream>
 #include <string>
 
@@ -12,6 +13,9 @@
 #include <diffphd/optim/scene_task.hpp>
 
 namespace diffphd::cli {
+
+/// What `diffphd optimize` does with each evaluation as it happens.
+using EvaluationReport = std::function<void(const optim::Evaluation&)>;
 
 struct GradcheckArgs {
   std::string param;
@@ -70,13 +74,9 @@ inline nlohmann::json to_json(const optim::TaskResult& r) {
   return j;
 }
 
+/// `report` sees every evaluation as it happens (progress lines, the flushed evaluation log).
 template <class Energy>
-nlohmann::json optimize_energy(const optim::TaskSpec& task, bool progress) {
-  auto report = [&](const optim::Evaluation& e) {
-    if (progress)
-      std::cerr << "  evaluation " << e.index << ": loss " << e.loss << ", |grad| " << e.grad_norm
-                << ", " << e.seconds << " s\n";
-  };
+nlohmann::json optimize_energy(const optim::TaskSpec& task, const EvaluationReport& report) {
   const optim::TaskResult r = io::scene_dimension(task.scene) == 2
                                   ? optim::optimize_task<2, Energy>(task, report)
                                   : optim::optimize_task<3, Energy>(task, report);
@@ -155,7 +155,7 @@ nlohmann::json bench_backward_energy(const io::SceneSpec& scene, const BenchBack
 }
 
 // Dispatch by the scene's energy (adjoint_dispatch.cpp).
-nlohmann::json optimize_dispatch(const optim::TaskSpec& task, bool progress);
+nlohmann::json optimize_dispatch(const optim::TaskSpec& task, const EvaluationReport& report);
 nlohmann::json gradcheck_dispatch(const io::SceneSpec& scene, const GradcheckArgs& a);
 nlohmann::json bench_backward_dispatch(const io::SceneSpec& scene, const BenchBackwardArgs& a);
 
@@ -163,7 +163,7 @@ nlohmann::json bench_backward_dispatch(const io::SceneSpec& scene, const BenchBa
 
 #define DIFFPHD_CLI_DECLARE_ADJOINT(...)                                           \
   extern template nlohmann::json diffphd::cli::optimize_energy<__VA_ARGS__>(       \
-      const diffphd::optim::TaskSpec&, bool);                                      \
+      const diffphd::optim::TaskSpec&, const diffphd::cli::EvaluationReport&);    \
   extern template nlohmann::json diffphd::cli::gradcheck_energy<__VA_ARGS__>(      \
       const diffphd::io::SceneSpec&, const diffphd::cli::GradcheckArgs&);          \
   extern template nlohmann::json diffphd::cli::bench_backward_energy<__VA_ARGS__>( \
@@ -171,7 +171,7 @@ nlohmann::json bench_backward_dispatch(const io::SceneSpec& scene, const BenchBa
 
 #define DIFFPHD_CLI_DEFINE_ADJOINT(...)                                     \
   template nlohmann::json diffphd::cli::optimize_energy<__VA_ARGS__>(       \
-      const diffphd::optim::TaskSpec&, bool);                               \
+      const diffphd::optim::TaskSpec&, const diffphd::cli::EvaluationReport&);  \
   template nlohmann::json diffphd::cli::gradcheck_energy<__VA_ARGS__>(      \
       const diffphd::io::SceneSpec&, const diffphd::cli::GradcheckArgs&);   \
   template nlohmann::json diffphd::cli::bench_backward_energy<__VA_ARGS__>( \

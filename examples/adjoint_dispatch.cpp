@@ -22,10 +22,10 @@ nlohmann::json by_energy(const io::SceneSpec& scene, F&& f) {
 }
 }  // namespace
 
-nlohmann::json optimize_dispatch(const optim::TaskSpec& task, bool progress) {
+nlohmann::json optimize_dispatch(const optim::TaskSpec& task, const EvaluationReport& report) {
   return by_energy(task.scene, [&](auto* e) {
     using E = std::remove_pointer_t<decltype(e)>;
-    return optimize_energy<E>(task, progress);
+    return optimize_energy<E>(task, report);
   });
 }
 

@@ -3,6 +3,7 @@
 //   diffphd --version
 //   diffphd mesh-info FILE [--json]
 //   diffphd run SCENE.json [--out DIR] [--frames N] [--contrast C] [--anderson M] [--json] ...
+//   diffphd run SCENE.json --resume DIR [the killed run's options]
 //
 //   diffphd bench SCENE --out DIR ...
 //   diffphd optimize TASK.json [--json] [--out DIR]
@@ -71,6 +72,7 @@ int cmd_run(const std::string& scene_path, std::optional<double> contrast,
             diffphd::cli::RunOptions opt, bool as_json) {
   const diffphd::io::SceneSpec scene = diffphd::io::load_scene(scene_path, contrast);
   opt.progress = !as_json;
+  opt.contrast = contrast;
   const json j = diffphd::cli::run_scene(scene, opt);
   if (as_json) {
     std::cout << j.dump() << "\n";
@@ -81,9 +83,11 @@ int cmd_run(const std::string& scene_path, std::optional<double> contrast,
               << 1e3 * j["median_seconds_per_step"].get<double>() << " ms per step (median), "
               << j["vertices"] << " vertices / " << j["elements"] << " elements, contrast "
               << j["contrast"].get<double>() << "x\n";
+    if (j.contains("resumed_from_frame"))
+      std::cout << "  resumed from the checkpoint of frame " << j["resumed_from_frame"] << "\n";
     if (!opt.out_dir.empty())
       std::cout << "  wrote " << opt.out_dir << "/frames/" << j["name"].get<std::string>()
-                << ".pvd, OBJ frames, stats.csv, summary.json\n";
+                << ".pvd, OBJ frames, stats.csv, summary.json, checkpoint.bin\n";
     if (j.contains("error")) std::cout << "  stopped: " << j["error"].get<std::string>() << "\n";
   }
   return j["status"] == "ok" ? 0 : 3;
@@ -96,11 +100,31 @@ int cmd_optimize(const std::string& task_path, std::optional<int> max_evals,
   if (!quiet)
     std::cerr << "optimize " << task.name << ": " << task.parameters.size() << " parameter(s), "
               << task.frames << " frames, at most " << task.max_evaluations << " evaluations\n";
-  const json j = diffphd::cli::optimize_dispatch(task, !quiet);
+  // DIR/<task>.evaluations.jsonl: one line per evaluation, flushed as it happens (a killed
+  // optimization keeps every evaluation it made, with its point x).
+  std::ofstream log;
   if (!out_dir.empty()) {
     fs::create_directories(out_dir);
-    std::ofstream(fs::path(out_dir) / (task.name + ".json")) << j.dump(2) << "\n";
+    const fs::path path = fs::path(out_dir) / (task.name + ".evaluations.jsonl");
+    log.open(path);
+    if (!log) throw diffphd::InputError("cannot write", path.string());
   }
+  const json j = diffphd::cli::optimize_dispatch(task, [&](const diffphd::optim::Evaluation& e) {
+    if (!quiet)
+      std::cerr << "  evaluation " << e.index << ": loss " << e.loss << ", |grad| " << e.grad_norm
+                << ", " << e.seconds << " s\n";
+    if (log.is_open())
+      log << json{{"evaluation", e.index},
+                  {"loss", e.loss},
+                  {"grad_norm", e.grad_norm},
+                  {"seconds", e.seconds},
+                  {"x", std::vector<double>(e.x.data(), e.x.data() + e.x.size())}}
+                 .dump()
+          << std::endl;
+  });
+  if (!out_dir.empty())
+    diffphd::io::write_file_atomically((fs::path(out_dir) / (task.name + ".json")).string(),
+                                       [&](std::ostream& out) { out << j.dump(2) << "\n"; });
   if (as_json) {
     json slim = j;
     slim.erase("history");
@@ -178,6 +202,19 @@ int main(int argc, char** argv) {
                   "small-strain Lame parameters; docs/energies.md)")
       ->check(CLI::IsMember({"lambda", "lame"}));
   run->add_flag("--no-frames", no_frames, "Write stats and summary only");
+  int checkpoint_every = 10;
+  std::string resume_dir;
+  std::optional<int> stop_after_frame;
+  run->add_option("--checkpoint-every", checkpoint_every,
+                  "Write DIR/checkpoint.bin every N frames and at the end (0: never; default 10)")
+      ->check(CLI::NonNegativeNumber);
+  run->add_option("--resume", resume_dir,
+                  "Continue the killed run whose --out folder is DIR from its last checkpoint "
+                  "(same scene and options; ends bitwise equal to an uninterrupted run)");
+  run->add_option("--stop-after-frame", stop_after_frame,
+                  "Tests: exit abruptly (status 137) once frame K is written")
+      ->check(CLI::PositiveNumber)
+      ->group("");
   run->add_flag("--json", json_out, "Print the summary as one JSON object on stdout");
 
   diffphd::cli::BenchOptions bench_opt;
@@ -233,7 +270,8 @@ int main(int argc, char** argv) {
   optimize->add_option("--max-evaluations", opt_max_evals, "Override the task's evaluation budget")
       ->check(CLI::PositiveNumber);
   optimize->add_option("--out", opt_out,
-                       "Write DIR/<task>.json (result and per-evaluation history)");
+                       "Write DIR/<task>.json (result and per-evaluation history) and "
+                       "DIR/<task>.evaluations.jsonl (flushed per evaluation)");
   optimize->add_flag("--json", opt_json, "Print the result as one JSON object on stdout");
   optimize->add_flag("--quiet", opt_quiet, "No per-evaluation progress on stderr");
 
@@ -417,6 +455,18 @@ int main(int argc, char** argv) {
     if (*run) {
       diffphd::cli::RunOptions opt;
       opt.out_dir = out_dir;
+      opt.checkpoint_every = checkpoint_every;
+      opt.stop_after_frame = stop_after_frame;
+      if (!resume_dir.empty()) {
+        std::error_code ec;
+        if (!out_dir.empty() && !fs::equivalent(out_dir, resume_dir, ec))
+          throw diffphd::InputError("--resume " + resume_dir + " writes into that folder; --out " +
+                                    out_dir + " names another");
+        if (!fs::is_directory(resume_dir))
+          throw diffphd::InputError("--resume " + resume_dir + ": no such folder");
+        opt.out_dir = resume_dir;
+        opt.resume = true;
+      }
       opt.frames = frames;
       opt.anderson = anderson;
       opt.eps_rel = eps_rel;

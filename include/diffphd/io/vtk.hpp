@@ -1,7 +1,8 @@
 #pragma once
 /// \file vtk.hpp
 /// \brief ParaView output: write_vtu (one VTK XML UnstructuredGrid, ASCII) and PvdWriter (a
-/// time series of .vtu files listed in a .pvd collection rewritten after every frame).
+/// time series of .vtu files listed in a .pvd collection rewritten after every frame; both
+/// written atomically: a temporary file, then a rename).
 
 #include <cstdio>
 #include <filesystem>
@@ -14,6 +15,7 @@
 
 #include "../core/errors.hpp"
 #include "../core/mesh.hpp"
+#include "atomic_file.hpp"
 #include "detail/text_reader.hpp"
 
 namespace diffphd::io {
@@ -127,18 +129,37 @@ class PvdWriter {
       throw InputError("cannot create the output directory: " + ec.message(), dir_);
   }
 
-  /// Writes frame number num_frames() at `time` (see write_vtu for the arguments) and
-  /// rewrites the .pvd collection.
+  /// Writes frame number num_frames() at `time` (see write_vtu for the arguments; the .vtu is
+  /// written to a temporary file renamed into place) and rewrites the .pvd collection.
   template <int Dim, typename DerivedX>
   void add_frame(double time, const SimplicialMesh<Dim>& mesh, const Eigen::MatrixBase<DerivedX>& x,
                  const PointData& point_data = {}, const CellData& cell_data = {}) {
     const std::string name = frame_name(static_cast<int>(frames_.size()));
-    write_vtu(dir_ + "/" + name, mesh, x, point_data, cell_data);
+    const std::string path = dir_ + "/" + name;
+    write_vtu(temporary_path(path), mesh, x, point_data, cell_data);
+    replace_file(temporary_path(path), path);
     frames_.emplace_back(time, name);
     write_collection();
   }
 
+  /// Continues an earlier series in the same folder (a resumed run): frames 0 ..
+  /// times.size() - 1 are taken as written at `times` (their .vtu files are not touched), later
+  /// frames are dropped from the collection, which is rewritten; the next add_frame() writes
+  /// frame times.size().
+  void resume(const std::vector<double>& times) {
+    frames_.clear();
+    for (size_t i = 0; i < times.size(); ++i)
+      frames_.emplace_back(times[i], frame_name(static_cast<int>(i)));
+    write_collection();
+  }
+
   int num_frames() const { return static_cast<int>(frames_.size()); }
+  /// The time of every frame written (or resumed) so far.
+  std::vector<double> frame_times() const {
+    std::vector<double> t;
+    for (const auto& f : frames_) t.push_back(f.first);
+    return t;
+  }
   /// dir/basename.pvd
   std::string pvd_path() const { return dir_ + "/" + basename_ + ".pvd"; }
   /// dir/basename_NNNNNN.vtu of frame i
@@ -151,7 +172,7 @@ class PvdWriter {
     return basename_ + buf;
   }
   void write_collection() const {
-    const std::string path = pvd_path(), tmp = path + ".tmp";
+    const std::string path = pvd_path(), tmp = temporary_path(path);
     {
       auto out = detail::open_for_writing(tmp);
       out << "<?xml version=\"1.0\"?>\n"
@@ -163,9 +184,7 @@ class PvdWriter {
       out << "</Collection>\n</VTKFile>\n";
       detail::finish_writing(out, tmp);
     }
-    std::error_code ec;
-    std::filesystem::rename(tmp, path, ec);  // atomic: a reader never sees a half-written file
-    if (ec) throw InputError("cannot replace the collection file: " + ec.message(), path);
+    replace_file(tmp, path);  // atomic: a reader never sees a half-written file
   }
 
   std::string dir_, basename_;

@@ -63,6 +63,15 @@ Vec<Dim> driven_position(const Driver<Dim>& d, const Vec<Dim>& X, double t) {
   return X;
 }
 
+/// \brief A driver as a DirichletSet holds it: the motion and the reference positions of its
+/// vertices (their positions when it was added; row j for driver.vertices[j]). What a solver
+/// checkpoint saves of each driver (SolverState).
+template <int Dim>
+struct DriverState {
+  Driver<Dim> driver;
+  VertexMatrix<Dim> reference;
+};
+
 namespace detail {
 template <int Dim>
 constexpr std::array<bool, Dim> all_axes() {
@@ -95,16 +104,26 @@ class DirichletSet {
   }
   /// Adds a driver; its reference positions are the driven vertices' positions in `x`.
   void add_driver(Driver<Dim> d, const VertexMatrix<Dim>& x) {
-    for (Index i : d.vertices) check_vertex(i, "add_driver");
-    if (!(d.stop >= d.start)) throw InputError("add_driver: stop must be >= start");
-    if (d.kind == Driver<Dim>::Kind::Twist && Dim == 3 && !(d.axis.norm() > 0))
-      throw InputError("add_driver: twist axis must be non-zero");
+    check_driver(d, "add_driver");
     State s;
     s.reference.resize(static_cast<Index>(d.vertices.size()), Dim);
     for (size_t j = 0; j < d.vertices.size(); ++j)
       s.reference.row(static_cast<Index>(j)) = x.row(d.vertices[j]);
     s.driver = std::move(d);
     drivers_.push_back(std::move(s));
+  }
+  /// The drivers added so far, in order, with their reference positions.
+  const std::vector<DriverState<Dim>>& drivers() const { return drivers_; }
+  /// Replaces the drivers (a restored checkpoint), checked as add_driver checks them; each
+  /// reference must have one finite row per driven vertex.
+  void set_drivers(std::vector<DriverState<Dim>> d) {
+    for (const auto& s : d) {
+      check_driver(s.driver, "set_drivers");
+      if (s.reference.rows() != static_cast<Index>(s.driver.vertices.size()) ||
+          !s.reference.allFinite())
+        throw InputError("set_drivers: a driver's reference must have one finite row per vertex");
+    }
+    drivers_ = std::move(d);
   }
   /// Position of driven vertex j (index into its vertex list) of driver d at time t.
   Vec<Dim> driver_position(int d, Index j, double t) const {
@@ -136,10 +155,13 @@ class DirichletSet {
   bool empty() const { return fixed_.empty() && drivers_.empty(); }
 
  private:
-  struct State {
-    Driver<Dim> driver;
-    VertexMatrix<Dim> reference;
-  };
+  using State = DriverState<Dim>;
+  void check_driver(const Driver<Dim>& d, const char* fn) const {
+    for (Index i : d.vertices) check_vertex(i, fn);
+    if (!(d.stop >= d.start)) throw InputError(std::string(fn) + ": stop must be >= start");
+    if (d.kind == Driver<Dim>::Kind::Twist && Dim == 3 && !(d.axis.norm() > 0))
+      throw InputError(std::string(fn) + ": twist axis must be non-zero");
+  }
   static bool active(const State& s, double t) {
     return !(s.driver.release_at_stop && t > s.driver.stop);
   }

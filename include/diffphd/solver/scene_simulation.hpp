@@ -191,6 +191,31 @@ class SceneRunner {
     sim_.set_state(mesh().rest_positions(), initial_velocities_);
   }
 
+  /// The state to checkpoint (see SceneState): the solver's state(), the drivers handed over
+  /// and the group activations. set_state() of it on a runner built from the same scene and
+  /// options continues bitwise equal to this one.
+  SceneState<Dim> state() const {
+    SceneState<Dim> s;
+    s.solver = sim_.state();
+    s.drivers_added = driver_added_;
+    s.group_activations = group_activations_;
+    return s;
+  }
+  /// Restores a state().
+  /// \throws InputError when it does not fit the scene (driver or muscle group count) or the
+  ///   solver (Solver::set_state)
+  void set_state(const SceneState<Dim>& s) {
+    if (s.drivers_added.size() != driver_added_.size() ||
+        s.group_activations.size() != group_activations_.size())
+      throw InputError(scene_.file + ": the state has " + std::to_string(s.drivers_added.size()) +
+                       " drivers and " + std::to_string(s.group_activations.size()) +
+                       " muscle groups, the scene " + std::to_string(driver_added_.size()) +
+                       " and " + std::to_string(group_activations_.size()));
+    sim_.set_state(s.solver);
+    driver_added_ = s.drivers_added;
+    group_activations_ = s.group_activations;
+  }
+
   /// The external forces of the scene's "forces" active at time t (start <= t < stop), N per
   /// vertex, #V by Dim (zero when none is active).
   VertexMatrix<Dim> scene_forces(double t) const {

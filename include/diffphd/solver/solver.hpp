@@ -35,6 +35,7 @@
 #include "dual_gate.hpp"
 #include "methods.hpp"
 #include "pd_potential.hpp"
+#include "state.hpp"
 
 namespace diffphd {
 
@@ -326,6 +327,42 @@ class Solver {
     velocities_ = v;
   }
   void set_time(double t) { t_ = t; }
+
+  /// Everything later steps read that steps or the caller change over time (see SolverState):
+  /// a checkpoint. set_state() of it on a solver built the same way (mesh, materials, options,
+  /// fixed vertices, muscles, contact model) continues bitwise equal to this one.
+  SolverState<Dim> state() const {
+    SolverState<Dim> s;
+    s.time = t_;
+    s.positions = positions_;
+    s.velocities = velocities_;
+    s.external_forces = f_ext_;
+    s.activations = activation_;
+    s.previous_iterate = last_iterate_prev_;
+    s.drivers = bc_.drivers();
+    return s;
+  }
+  /// Restores a state() (the drivers replace the current ones).
+  /// \throws InputError on a size that does not match this solver or a non-finite entry
+  void set_state(const SolverState<Dim>& s) {
+    const Index n = nv_ * Dim;
+    if (s.external_forces.rows() != nv_ || s.activations.size() != ne_ ||
+        (s.previous_iterate.size() != 0 && s.previous_iterate.size() != n))
+      throw InputError("set_state: the state is for another mesh (" +
+                       std::to_string(s.external_forces.rows()) + " vertices, " +
+                       std::to_string(s.activations.size()) + " elements; the solver has " +
+                       std::to_string(nv_) + " and " + std::to_string(ne_) + ")");
+    if (!std::isfinite(s.time) || !s.external_forces.allFinite() || !s.activations.allFinite() ||
+        !s.previous_iterate.allFinite())
+      throw InputError("set_state: non-finite time, forces, activations or iterate");
+    set_state(s.positions, s.velocities);
+    bc_.set_drivers(s.drivers);
+    t_ = s.time;
+    f_ext_ = s.external_forces;
+    activation_ = s.activations;
+    for (Index e = 0; e < ne_; ++e) params_[e].activation = activation_[e];
+    last_iterate_prev_ = s.previous_iterate;
+  }
 
   /// Muscle (fibre terms only): per-element stiffness k_e (#E) and fibre directions (#E by 3,
   /// first Dim entries used, normalised). Changes A: refactors at the next step.
