@@ -1,6 +1,6 @@
 #pragma once
 // The files of `diffphd run --out DIR`, written so that a killed run leaves readable output and
-// can be resumed (docs/reliability-resume.md): stats.csv appended one whole frame per write,
+// can be resumed (docs/reliability.md): stats.csv appended one whole frame per write,
 // summary.json and the checkpoint replaced atomically (temporary file, then rename). The code
 // here does not depend on the energy (examples/run_output.cpp): editing it rebuilds one
 // translation unit, not every run_*.cpp.

@@ -18,7 +18,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ci_tests=(test_io test_mesh test_material test_small_matrix test_generators test_scene test_anderson
           test_pd_matrix test_pd_system test_factor test_inverse_factor test_optim test_solver)
-if [[ ${1:-} == --ci ]]; then set -- "${ci_tests[@]}"; fi
+# Under the sanitizers (-O1, Eigen's assertions on) one test case takes over 10 minutes: plain
+# PD (no Anderson) up to 5000 iterations per step at contrast 100. --ci leaves it out.
+exclude="^$"
+if [[ ${1:-} == --ci ]]; then
+  set -- "${ci_tests[@]}"
+  exclude="Anderson \(m = 1\) needs fewer iterations than plain PD"
+fi
 build_dir=${DIFFPHD_SANITIZE_BUILD_DIR:-build-sanitize}
 jobs=${DIFFPHD_JOBS:-$(nproc)}
 export OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1}
@@ -44,4 +50,4 @@ export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:halt_on_error=1:abort_on_erro
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 export LSAN_OPTIONS=${LSAN_OPTIONS:-suppressions=$PWD/tests/sanitize/lsan.supp:print_suppressions=0}
 cd "$build_dir"
-ctest --output-on-failure -j "$jobs" -R "$regex" --timeout "${DIFFPHD_SANITIZE_TIMEOUT:-1500}"
+ctest --output-on-failure -j "$jobs" -R "$regex" -E "$exclude" --timeout "${DIFFPHD_SANITIZE_TIMEOUT:-1500}"

@@ -3,7 +3,7 @@
 /// \brief SolverState and SceneState: what a Solver (and a SceneRunner) carry from one step to
 /// the next, i.e. what a checkpoint must hold for a restored run to continue bitwise equal to
 /// an uninterrupted one (Solver::state() / set_state(), SceneRunner::state() / set_state();
-/// binary files in checkpoint.hpp; docs/reliability-resume.md).
+/// binary files in checkpoint.hpp; docs/reliability.md).
 ///
 /// Not in it (set up again by whoever builds the solver, as the first time): the mesh, the
 /// materials, the options, the fixed vertices, the muscle stiffness and fibres, the contact
