@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The soak (not part of the default suite; about 30-40 minutes on 2 cores, most of it ball_drop): 10^4 steps of the demo
-# and of a contact scene (ball_drop), and the adjoint gradient of a 1000-step demo rollout.
+# The soak (not part of the default suite; 30-40 minutes on 2 cores, most of it ball_drop):
+# 10^4 steps of the demo and of a contact scene (ball_drop), and the adjoint gradient of a
+# 1000-step demo rollout.
 # Each run checks that no step fails or stops unconverged, that resident memory stays flat after
 # the warm-up, that the energy of the undamped body never rises, and that the gradient is finite
 # (bench/soak.cpp). One JSON line per run goes to OUT (default out/soak/); exit status 1 when any
