@@ -48,10 +48,6 @@ long resident_kib() {
   return 0;
 }
 
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
 /// Kinetic + PD elastic + gravitational potential energy (J) of the solver's current state.
 template <class S>
 double total_energy(const S& s) {
@@ -97,7 +93,7 @@ json forward(const io::SceneSpec& scene, int steps, bool trace) {
     if ((i + 1) % 1000 == 0)
       std::cerr << "soak: " << scene.output.name << " step " << i + 1 << "/" << steps << ", "
                 << iterations / double(i + 1) << " it/step, " << resident_kib() << " KiB, "
-                << seconds_since(t0) << " s\n";
+                << diffphd::detail::seconds_since(t0) << " s\n";
   }
   // Flat: after the warm-up, at most 1 MiB or 1% more than at its end.
   const long allowed = std::max(1024L, rss_warm / 100);
@@ -127,7 +123,7 @@ json forward(const io::SceneSpec& scene, int steps, bool trace) {
             {"energy_max_rise", rise_max},
             {"energy_max_after_warmup", e_max_late},
             {"energy_bounded", energy_bounded},
-            {"seconds", seconds_since(t0)}};
+            {"seconds", diffphd::detail::seconds_since(t0)}};
   j["ok"] = failed == 0 && unconverged == 0 && rss_flat && energy_bounded;
   return j;
 }
@@ -161,7 +157,7 @@ json gradient(const io::SceneSpec& scene, int steps) {
             {"unconverged_steps", g.unconverged_steps},
             {"unconverged_adjoints", g.unconverged_adjoints},
             {"finite", finite},
-            {"seconds", seconds_since(t0)}};
+            {"seconds", diffphd::detail::seconds_since(t0)}};
   j["ok"] = finite && g.unconverged_steps == 0 && g.unconverged_adjoints == 0;
   return j;
 }
