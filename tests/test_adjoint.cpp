@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <string>
 #include <vector>
@@ -599,6 +600,37 @@ TEST_CASE("Rollout: bad controls and options are errors that say what is wrong",
   RolloutOptions bad;
   bad.steps = 0;
   CHECK_THROWS_AS((Rollout<3, Energies<Corotated, Volume>>(sim, bad)), InputError);
+  // The backward options reach the step adjoint through set_options, validated field by field.
+  using R = Rollout<3, Energies<Corotated, Volume>>;
+  auto backward_error = [&](auto change) {
+    RolloutOptions o;
+    change(o.backward);
+    try {
+      R r(sim, o);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  CHECK(backward_error([](BackwardOptions&) {}) == "no error");
+  CHECK_THAT(backward_error([](BackwardOptions& b) { b.tolerance = -1; }),
+             Catch::Contains("BackwardOptions: tolerance = -1"));
+  CHECK_THAT(backward_error([](BackwardOptions& b) {
+               b.tolerance = std::numeric_limits<double>::quiet_NaN();
+             }),
+             Catch::Contains("BackwardOptions: tolerance = nan must be finite"));
+  CHECK_THAT(backward_error([](BackwardOptions& b) {
+               b.eps_tr = std::numeric_limits<double>::infinity();
+             }),
+             Catch::Contains("BackwardOptions: eps_tr = inf"));
+  CHECK_THAT(backward_error([](BackwardOptions& b) { b.max_iterations = 0; }),
+             Catch::Contains("BackwardOptions: max_iterations = 0 must be >= 1"));
+  CHECK_THAT(backward_error([](BackwardOptions& b) { b.restart = 0; }),
+             Catch::Contains("BackwardOptions: restart = 0"));
+  CHECK_THAT(backward_error([](BackwardOptions& b) { b.pcg_max_iterations = 0; }),
+             Catch::Contains("BackwardOptions: pcg_max_iterations = 0"));
+  CHECK_THAT(backward_error([](BackwardOptions& b) { b.pcg_stall_window = -1; }),
+             Catch::Contains("BackwardOptions: pcg_stall_window = -1"));
 }
 
 namespace {

@@ -174,8 +174,9 @@ TEST_CASE("Solver: a NaN external force is refused by name, the solver unchanged
 }
 
 TEST_CASE("Solver: a NaN in the local step names the iteration and the element", "[solver]") {
-  // An infinite driver velocity puts Inf into the prescribed positions; the first local step
-  // sees a non-finite F in the elements at the driven end.
+  // A driver velocity of 1e308 m/s at t = 2 s puts 2e308 = Inf into the prescribed positions
+  // (add_driver refuses a non-finite velocity itself); the first local step sees a non-finite F
+  // in the elements at the driven end.
   TwistBar scene(10.0);
   SolverOptions o;
   o.method = SolverMethod::PD;
@@ -183,8 +184,9 @@ TEST_CASE("Solver: a NaN in the local step names the iteration and the element",
   Driver<3> d;
   d.kind = Driver<3>::Kind::Pull;
   d.vertices = scene.right;
-  d.velocity = Vec<3>(std::numeric_limits<double>::infinity(), 0, 0);
+  d.velocity = Vec<3>(1e308, 0, 0);
   sim.add_driver(d);
+  sim.set_time(2.0);
   const VertexMatrix<3> q0 = sim.positions();
   const StepReport r = sim.step();
   REQUIRE(r.status == StepStatus::NonFinite);
@@ -192,6 +194,45 @@ TEST_CASE("Solver: a NaN in the local step names the iteration and the element",
   REQUIRE(r.message.find("iteration 0") != std::string::npos);
   REQUIRE(r.message.find("element") != std::string::npos);
   REQUIRE(sim.positions() == q0);
+}
+
+TEST_CASE("Solver: add_driver refuses what the scene parser refuses, naming the field",
+          "[solver][errors]") {
+  TwistBar scene(10.0);
+  Solver<3, CoroVol> sim(scene.mesh, scene.materials, SolverOptions{});
+  const double inf = std::numeric_limits<double>::infinity();
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  auto error_of = [&](auto change) {
+    Driver<3> d;
+    d.kind = Driver<3>::Kind::Twist;
+    d.vertices = scene.right;
+    d.angular_velocity = 1;
+    change(d);
+    try {
+      sim.add_driver(d);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  CHECK(error_of([](Driver<3>&) {}) == "no error");  // the base driver is fine
+  CHECK(error_of([&](Driver<3>& d) { d.stop = inf; }) == "no error");  // never stops
+  CHECK_THAT(error_of([&](Driver<3>& d) { d.velocity[0] = inf; }),
+             Catch::Contains("add_driver: velocity must be finite (got inf, 0, 0)"));
+  CHECK_THAT(error_of([&](Driver<3>& d) { d.axis[2] = nan; }),
+             Catch::Contains("add_driver: axis must be finite"));
+  CHECK_THAT(error_of([&](Driver<3>& d) { d.center[1] = -inf; }),
+             Catch::Contains("add_driver: center must be finite"));
+  CHECK_THAT(error_of([&](Driver<3>& d) { d.angular_velocity = nan; }),
+             Catch::Contains("add_driver: angular_velocity must be finite"));
+  CHECK_THAT(error_of([&](Driver<3>& d) { d.start = -inf; }),
+             Catch::Contains("add_driver: start must be finite"));
+  CHECK_THAT(error_of([&](Driver<3>& d) { d.stop = nan; }),
+             Catch::Contains("add_driver: stop must be >= start"));
+  CHECK_THAT(error_of([&](Driver<3>& d) { d.axis.setZero(); }),
+             Catch::Contains("add_driver: twist axis must be non-zero"));
+  CHECK_THAT(error_of([&](Driver<3>& d) { d.vertices.push_back(sim.positions().rows()); }),
+             Catch::Contains("add_driver: vertex") && Catch::Contains("out of range"));
 }
 
 TEST_CASE("Solver: MaxIterations is reported on a hard step with max_iterations = 2", "[solver]") {

@@ -320,16 +320,37 @@ class StepAdjoint {
 
   explicit StepAdjoint(SolverT& solver, BackwardOptions options = {})
       : solver_(solver), options_(options) {
-    if (!(options_.tolerance >= 0) || options_.max_iterations < 1 || options_.restart < 1 ||
-        !(options_.eps_tr >= 0) || options_.pcg_max_iterations < 1 ||
-        options_.pcg_stall_window < 0)
-      throw InputError(
-          "BackwardOptions: tolerance >= 0, max_iterations >= 1, restart >= 1, "
-          "pcg_max_iterations >= 1, pcg_stall_window >= 0 and eps_tr >= 0 are required");
+    validate(options_);
+  }
+
+  /// Throws InputError naming the first bad field: tolerance and eps_tr finite and >= 0,
+  /// max_iterations, restart, pcg_max_iterations >= 1, pcg_stall_window >= 0.
+  static void validate(const BackwardOptions& o) {
+    auto fail = [](const std::string& what) { throw InputError("BackwardOptions: " + what); };
+    auto num = [](double v) {
+      std::ostringstream os;
+      os << v;
+      return os.str();
+    };
+    if (!(o.tolerance >= 0 && std::isfinite(o.tolerance)))
+      fail("tolerance = " + num(o.tolerance) + " must be finite and >= 0");
+    if (!(o.eps_tr >= 0 && std::isfinite(o.eps_tr)))
+      fail("eps_tr = " + num(o.eps_tr) + " must be finite and >= 0");
+    if (o.max_iterations < 1)
+      fail("max_iterations = " + std::to_string(o.max_iterations) + " must be >= 1");
+    if (o.restart < 1) fail("restart = " + std::to_string(o.restart) + " must be >= 1");
+    if (o.pcg_max_iterations < 1)
+      fail("pcg_max_iterations = " + std::to_string(o.pcg_max_iterations) + " must be >= 1");
+    if (o.pcg_stall_window < 0)
+      fail("pcg_stall_window = " + std::to_string(o.pcg_stall_window) + " must be >= 0");
   }
 
   const BackwardOptions& options() const { return options_; }
-  void set_options(const BackwardOptions& o) { options_ = o; }
+  /// Replaces the options, validated as the constructor validates them.
+  void set_options(const BackwardOptions& o) {
+    validate(o);
+    options_ = o;
+  }
 
   /// Backward pass of the step in `rec`. `mat` (optional) accumulates the material and damping
   /// gradient. Throws std::runtime_error on a non-finite adjoint (naming the time and where).

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -156,11 +157,29 @@ class DirichletSet {
 
  private:
   using State = DriverState<Dim>;
+  /// The checks the scene parser makes of a driver (docs/scenes.md, "drivers"), with the same
+  /// names: every number finite (stop may be +infinity: never stops), stop >= start, a non-zero
+  /// twist axis, vertices in range.
   void check_driver(const Driver<Dim>& d, const char* fn) const {
     for (Index i : d.vertices) check_vertex(i, fn);
-    if (!(d.stop >= d.start)) throw InputError(std::string(fn) + ": stop must be >= start");
+    auto fail = [&](const std::string& what) { throw InputError(std::string(fn) + ": " + what); };
+    auto finite3 = [&](const Vec<3>& v, const char* name) {
+      if (!v.allFinite()) {
+        std::ostringstream os;
+        os << name << " must be finite (got " << v[0] << ", " << v[1] << ", " << v[2] << ")";
+        fail(os.str());
+      }
+    };
+    finite3(d.axis, "axis");
+    finite3(d.center, "center");
+    finite3(d.velocity, "velocity");
+    if (!std::isfinite(d.angular_velocity))
+      fail("angular_velocity must be finite (got " + std::to_string(d.angular_velocity) + ")");
+    if (!std::isfinite(d.start))
+      fail("start must be finite (got " + std::to_string(d.start) + ")");
+    if (!(d.stop >= d.start)) fail("stop must be >= start");
     if (d.kind == Driver<Dim>::Kind::Twist && Dim == 3 && !(d.axis.norm() > 0))
-      throw InputError(std::string(fn) + ": twist axis must be non-zero");
+      fail("twist axis must be non-zero");
   }
   static bool active(const State& s, double t) {
     return !(s.driver.release_at_stop && t > s.driver.stop);
