@@ -41,6 +41,7 @@ inline nlohmann::json to_json(const optim::TaskResult& r) {
   nlohmann::json j;
   j["task"] = r.name;
   j["evaluations"] = r.evaluations;
+  j["replayed_evaluations"] = r.replayed_evaluations;
   j["iterations"] = r.iterations;
   j["initial_loss"] = r.initial_loss;
   j["final_loss"] = r.final_loss;
@@ -74,12 +75,14 @@ inline nlohmann::json to_json(const optim::TaskResult& r) {
   return j;
 }
 
-/// `report` sees every evaluation as it happens (progress lines, the flushed evaluation log).
+/// `report` sees every evaluation as it happens (progress lines, the flushed evaluation log);
+/// `replay`: the evaluations of a killed run to resume (optim::MinimizeOptions::replay).
 template <class Energy>
-nlohmann::json optimize_energy(const optim::TaskSpec& task, const EvaluationReport& report) {
+nlohmann::json optimize_energy(const optim::TaskSpec& task, const EvaluationReport& report,
+                               const std::vector<optim::Evaluation>& replay) {
   const optim::TaskResult r = io::scene_dimension(task.scene) == 2
-                                  ? optim::optimize_task<2, Energy>(task, report)
-                                  : optim::optimize_task<3, Energy>(task, report);
+                                  ? optim::optimize_task<2, Energy>(task, report, replay)
+                                  : optim::optimize_task<3, Energy>(task, report, replay);
   return to_json(r);
 }
 
@@ -155,26 +158,29 @@ nlohmann::json bench_backward_energy(const io::SceneSpec& scene, const BenchBack
 }
 
 // Dispatch by the scene's energy (adjoint_dispatch.cpp).
-nlohmann::json optimize_dispatch(const optim::TaskSpec& task, const EvaluationReport& report);
+nlohmann::json optimize_dispatch(const optim::TaskSpec& task, const EvaluationReport& report,
+                                 const std::vector<optim::Evaluation>& replay = {});
 nlohmann::json gradcheck_dispatch(const io::SceneSpec& scene, const GradcheckArgs& a);
 nlohmann::json bench_backward_dispatch(const io::SceneSpec& scene, const BenchBackwardArgs& a);
 
 }  // namespace diffphd::cli
 
-#define DIFFPHD_CLI_DECLARE_ADJOINT(...)                                           \
-  extern template nlohmann::json diffphd::cli::optimize_energy<__VA_ARGS__>(       \
-      const diffphd::optim::TaskSpec&, const diffphd::cli::EvaluationReport&);    \
-  extern template nlohmann::json diffphd::cli::gradcheck_energy<__VA_ARGS__>(      \
-      const diffphd::io::SceneSpec&, const diffphd::cli::GradcheckArgs&);          \
+#define DIFFPHD_CLI_DECLARE_ADJOINT(...)                                        \
+  extern template nlohmann::json diffphd::cli::optimize_energy<__VA_ARGS__>(    \
+      const diffphd::optim::TaskSpec&, const diffphd::cli::EvaluationReport&,   \
+      const std::vector<diffphd::optim::Evaluation>&);                          \
+  extern template nlohmann::json diffphd::cli::gradcheck_energy<__VA_ARGS__>(   \
+      const diffphd::io::SceneSpec&, const diffphd::cli::GradcheckArgs&);       \
   extern template nlohmann::json diffphd::cli::bench_backward_energy<__VA_ARGS__>( \
       const diffphd::io::SceneSpec&, const diffphd::cli::BenchBackwardArgs&);
 
-#define DIFFPHD_CLI_DEFINE_ADJOINT(...)                                     \
-  template nlohmann::json diffphd::cli::optimize_energy<__VA_ARGS__>(       \
-      const diffphd::optim::TaskSpec&, const diffphd::cli::EvaluationReport&);  \
-  template nlohmann::json diffphd::cli::gradcheck_energy<__VA_ARGS__>(      \
-      const diffphd::io::SceneSpec&, const diffphd::cli::GradcheckArgs&);   \
-  template nlohmann::json diffphd::cli::bench_backward_energy<__VA_ARGS__>( \
+#define DIFFPHD_CLI_DEFINE_ADJOINT(...)                                         \
+  template nlohmann::json diffphd::cli::optimize_energy<__VA_ARGS__>(           \
+      const diffphd::optim::TaskSpec&, const diffphd::cli::EvaluationReport&,   \
+      const std::vector<diffphd::optim::Evaluation>&);                          \
+  template nlohmann::json diffphd::cli::gradcheck_energy<__VA_ARGS__>(          \
+      const diffphd::io::SceneSpec&, const diffphd::cli::GradcheckArgs&);       \
+  template nlohmann::json diffphd::cli::bench_backward_energy<__VA_ARGS__>(     \
       const diffphd::io::SceneSpec&, const diffphd::cli::BenchBackwardArgs&);
 
 DIFFPHD_CLI_DECLARE_ADJOINT(diffphd::Energies<diffphd::Corotated, diffphd::Volume>)

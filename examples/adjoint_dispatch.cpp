@@ -22,10 +22,11 @@ nlohmann::json by_energy(const io::SceneSpec& scene, F&& f) {
 }
 }  // namespace
 
-nlohmann::json optimize_dispatch(const optim::TaskSpec& task, const EvaluationReport& report) {
+nlohmann::json optimize_dispatch(const optim::TaskSpec& task, const EvaluationReport& report,
+                                 const std::vector<optim::Evaluation>& replay) {
   return by_energy(task.scene, [&](auto* e) {
     using E = std::remove_pointer_t<decltype(e)>;
-    return optimize_energy<E>(task, report);
+    return optimize_energy<E>(task, report, replay);
   });
 }
 

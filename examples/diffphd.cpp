@@ -7,6 +7,7 @@
 //
 //   diffphd bench SCENE --out DIR ...
 //   diffphd optimize TASK.json [--json] [--out DIR]
+//   diffphd optimize TASK.json --resume DIR
 //   diffphd gradcheck SCENE.json --param KIND [--frames N] [--json]
 //   diffphd bench-backward SCENE.json [--filters ...] [--out DIR]
 #include <chrono>
@@ -30,6 +31,7 @@
 
 #include "adjoint_cli.hpp"
 #include "bench.hpp"
+#include "optimize_log.hpp"
 #include "scene_run.hpp"
 
 namespace fs = std::filesystem;
@@ -93,35 +95,61 @@ int cmd_run(const std::string& scene_path, std::optional<double> contrast,
   return j["status"] == "ok" ? 0 : 3;
 }
 
+/// --resume DIR (run, optimize): the folder to continue in; --out, when also given, must name it.
+std::string resume_folder(const std::string& out_dir, const std::string& resume_dir) {
+  std::error_code ec;
+  if (!out_dir.empty() && !fs::equivalent(out_dir, resume_dir, ec))
+    throw diffphd::InputError("--resume " + resume_dir + " writes into that folder; --out " +
+                              out_dir + " names another");
+  if (!fs::is_directory(resume_dir))
+    throw diffphd::InputError("--resume " + resume_dir + ": no such folder");
+  return resume_dir;
+}
+
 int cmd_optimize(const std::string& task_path, std::optional<int> max_evals,
-                 const std::string& out_dir, bool as_json, bool quiet) {
+                 std::string out_dir, const std::string& resume_dir,
+                 std::optional<int> stop_after_evaluation, bool as_json, bool quiet) {
   diffphd::optim::TaskSpec task = diffphd::optim::load_task(task_path);
   if (max_evals) task.max_evaluations = *max_evals;
+  if (!resume_dir.empty()) out_dir = resume_folder(out_dir, resume_dir);
   if (!quiet)
     std::cerr << "optimize " << task.name << ": " << task.parameters.size() << " parameter(s), "
               << task.frames << " frames, at most " << task.max_evaluations << " evaluations\n";
   // DIR/<task>.evaluations.jsonl: one line per evaluation, flushed as it happens (a killed
-  // optimization keeps every evaluation it made, with its point x).
+  // optimization keeps every evaluation it made: x, loss and gradient, enough to resume it).
+  const std::uint64_t hash = diffphd::cli::task_hash(task);
+  std::vector<diffphd::optim::Evaluation> replay;
   std::ofstream log;
   if (!out_dir.empty()) {
     fs::create_directories(out_dir);
     const fs::path path = fs::path(out_dir) / (task.name + ".evaluations.jsonl");
-    log.open(path);
+    if (!resume_dir.empty()) {
+      const diffphd::cli::EvaluationLog rec =
+          diffphd::cli::read_evaluation_log(path.string(), hash);
+      replay = rec.evaluations;
+      fs::resize_file(path, rec.bytes);  // drop a line cut short by the kill
+      if (!quiet)
+        std::cerr << "  resuming from " << path.string() << ": " << replay.size()
+                  << " evaluation(s) recorded"
+                  << (rec.dropped_partial_line ? " (a partial last line dropped)" : "")
+                  << "; replaying them, then going on\n";
+      log.open(path, std::ios::app);
+    } else {
+      log.open(path);
+    }
     if (!log) throw diffphd::InputError("cannot write", path.string());
   }
-  const json j = diffphd::cli::optimize_dispatch(task, [&](const diffphd::optim::Evaluation& e) {
-    if (!quiet)
-      std::cerr << "  evaluation " << e.index << ": loss " << e.loss << ", |grad| " << e.grad_norm
-                << ", " << e.seconds << " s\n";
-    if (log.is_open())
-      log << json{{"evaluation", e.index},
-                  {"loss", e.loss},
-                  {"grad_norm", e.grad_norm},
-                  {"seconds", e.seconds},
-                  {"x", std::vector<double>(e.x.data(), e.x.data() + e.x.size())}}
-                 .dump()
-          << std::endl;
-  });
+  const json j = diffphd::cli::optimize_dispatch(
+      task,
+      [&](const diffphd::optim::Evaluation& e) {
+        if (e.replayed) return;  // already in the log
+        if (!quiet)
+          std::cerr << "  evaluation " << e.index << ": loss " << e.loss << ", |grad| "
+                    << e.grad_norm << ", " << e.seconds << " s\n";
+        if (log.is_open()) diffphd::cli::write_evaluation(log, e, hash);
+        if (stop_after_evaluation && e.index == *stop_after_evaluation) std::_Exit(137);
+      },
+      replay);
   if (!out_dir.empty())
     diffphd::io::write_file_atomically((fs::path(out_dir) / (task.name + ".json")).string(),
                                        [&](std::ostream& out) { out << j.dump(2) << "\n"; });
@@ -260,8 +288,8 @@ int main(int argc, char** argv) {
   bench->add_option("--out", bench_opt.out_dir, "Output directory (results.csv)")->required();
 
   // ---- backward pass: optimize, gradcheck, bench-backward ----
-  std::string task_path, opt_out;
-  std::optional<int> opt_max_evals;
+  std::string task_path, opt_out, opt_resume;
+  std::optional<int> opt_max_evals, opt_stop_after;
   bool opt_json = false, opt_quiet = false;
   auto* optimize = app.add_subcommand(
       "optimize",
@@ -272,6 +300,14 @@ int main(int argc, char** argv) {
   optimize->add_option("--out", opt_out,
                        "Write DIR/<task>.json (result and per-evaluation history) and "
                        "DIR/<task>.evaluations.jsonl (flushed per evaluation)");
+  optimize->add_option("--resume", opt_resume,
+                       "Continue a killed optimisation in DIR (its --out folder): replays the "
+                       "evaluations in DIR/<task>.evaluations.jsonl, then goes on; ends equal to "
+                       "an uninterrupted run");
+  optimize->add_option("--stop-after-evaluation", opt_stop_after,
+                       "Tests: exit abruptly (status 137) once evaluation K is in the log")
+      ->check(CLI::NonNegativeNumber)
+      ->group("");
   optimize->add_flag("--json", opt_json, "Print the result as one JSON object on stdout");
   optimize->add_flag("--quiet", opt_quiet, "No per-evaluation progress on stderr");
 
@@ -343,7 +379,9 @@ int main(int argc, char** argv) {
     throw diffphd::InputError("unknown filter \"" + f + "\" (none, clamp, abs, trust-region)");
   };
   try {
-    if (*optimize) return cmd_optimize(task_path, opt_max_evals, opt_out, opt_json, opt_quiet);
+    if (*optimize)
+      return cmd_optimize(task_path, opt_max_evals, opt_out, opt_resume, opt_stop_after, opt_json,
+                          opt_quiet);
     if (*gradcheck) {
       gc.filter = parse_filter(gc_filter);
       const diffphd::io::SceneSpec scene = diffphd::io::load_scene(gc_scene, gc_contrast);
@@ -458,13 +496,7 @@ int main(int argc, char** argv) {
       opt.checkpoint_every = checkpoint_every;
       opt.stop_after_frame = stop_after_frame;
       if (!resume_dir.empty()) {
-        std::error_code ec;
-        if (!out_dir.empty() && !fs::equivalent(out_dir, resume_dir, ec))
-          throw diffphd::InputError("--resume " + resume_dir + " writes into that folder; --out " +
-                                    out_dir + " names another");
-        if (!fs::is_directory(resume_dir))
-          throw diffphd::InputError("--resume " + resume_dir + ": no such folder");
-        opt.out_dir = resume_dir;
+        opt.out_dir = resume_folder(out_dir, resume_dir);
         opt.resume = true;
       }
       opt.frames = frames;

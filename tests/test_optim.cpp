@@ -237,6 +237,92 @@ TEST_CASE("minimize: bounds [0, 2] x [0, 2] stop (x-3)^2 + (y+1)^2 at (2, 0)", "
   }
 }
 
+namespace {
+/// Everything a resumed run must reproduce exactly (== on doubles, not Approx).
+void check_same_run(const MinimizeResult& a, const MinimizeResult& b) {
+  CHECK(a.stop_reason == b.stop_reason);
+  CHECK(a.evaluations == b.evaluations);
+  CHECK(a.iterations == b.iterations);
+  CHECK(a.initial_loss == b.initial_loss);
+  CHECK(a.final_loss == b.final_loss);
+  CHECK(a.x == b.x);
+  REQUIRE(a.history.size() == b.history.size());
+  for (std::size_t i = 0; i < a.history.size(); ++i) {
+    INFO("evaluation " << i);
+    CHECK(a.history[i].loss == b.history[i].loss);
+    CHECK(a.history[i].x == b.history[i].x);
+    CHECK(a.history[i].grad == b.history[i].grad);
+  }
+}
+}  // namespace
+
+TEST_CASE("minimize: a run killed after k evaluations and resumed by replay ends bit for bit "
+          "equal", "[optim][lbfgs][resume]") {
+  const bool bounded = GENERATE(false, true);
+  MinimizeOptions opt;
+  opt.max_evaluations = 200;
+  opt.epsilon = 1e-10;
+  opt.store_history_x = true;
+  if (bounded) {  // the upper bound 0.8 on x0 is active at the solution: L-BFGS-B
+    opt.lower = Eigen::Vector2d(-2, -2);
+    opt.upper = Eigen::Vector2d(0.8, 2);
+  }
+  int calls = 0;
+  auto f = [&](const VectorX& x, VectorX& g) {
+    ++calls;
+    return rosenbrock(x, g);
+  };
+  const Eigen::Vector2d x0(-1.2, 1.0);
+  const MinimizeResult full = minimize(f, x0, opt);
+  INFO((bounded ? "L-BFGS-B" : "L-BFGS") << ": " << full.evaluations << " evaluations, "
+                                         << full.stop_reason);
+  REQUIRE(full.evaluations > 10);
+  REQUIRE(calls == full.evaluations);
+  for (int k : {1, 2, 5, full.evaluations / 2, full.evaluations - 1, full.evaluations}) {
+    INFO("killed after " << k << " evaluations");
+    // The killed run: the budget ends it after k evaluations (its record is all it leaves).
+    MinimizeOptions killed = opt;
+    killed.max_evaluations = k;
+    const MinimizeResult part = minimize(f, x0, killed);
+    REQUIRE(part.evaluations == k);
+    MinimizeOptions resumed = opt;
+    resumed.replay = part.history;
+    int replayed = 0;
+    resumed.on_evaluation = [&](const Evaluation& e) {
+      CHECK(e.replayed == (e.index < k));
+      replayed += e.replayed;
+    };
+    calls = 0;
+    const MinimizeResult r = minimize(f, x0, resumed);
+    CHECK(calls == full.evaluations - k);  // f is called only after the record ends
+    CHECK(replayed == k);
+    check_same_run(full, r);
+  }
+}
+
+TEST_CASE("minimize: a record of another problem is refused", "[optim][lbfgs][resume][errors]") {
+  MinimizeOptions opt;
+  opt.store_history_x = true;
+  opt.max_evaluations = 6;
+  const MinimizeResult part = minimize(rosenbrock, Eigen::Vector2d(-1.2, 1.0), opt);
+  REQUIRE(part.history.size() == 6);
+  MinimizeOptions resumed;
+  resumed.replay = part.history;
+  // Another starting point: evaluation 0 differs.
+  CHECK_THROWS_WITH(minimize(rosenbrock, Eigen::Vector2d(-1.2, 1.5), resumed),
+                    Catch::Contains("replaying evaluation 0: the optimiser asks for x[1] = 1.5") &&
+                        Catch::Contains("the record has 1"));
+  // A record whose gradient at x0 was altered: the first search direction, hence the point
+  // of evaluation 1, differs from the recorded one.
+  resumed.replay[0].grad *= 3;
+  CHECK_THROWS_WITH(minimize(rosenbrock, Eigen::Vector2d(-1.2, 1.0), resumed),
+                    Catch::Contains("replaying evaluation 1: the optimiser asks for x[0]"));
+  // Another dimension.
+  resumed.replay = part.history;
+  CHECK_THROWS_WITH(minimize(rosenbrock, Eigen::Vector3d(-1.2, 1.0, 0), resumed),
+                    Catch::Contains("the record has 2 coordinates"));
+}
+
 TEST_CASE("minimize: max_evaluations stops with the best point", "[optim][lbfgs]") {
   MinimizeOptions opt;
   opt.max_evaluations = 7;

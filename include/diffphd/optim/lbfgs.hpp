@@ -37,6 +37,8 @@ struct Evaluation {
   double seconds = 0;    ///< wall-clock time of this call of f
   VectorX x;             ///< the point; always set for on_evaluation, in MinimizeResult::history
                          ///< only when MinimizeOptions::store_history_x (else empty)
+  VectorX grad;          ///< the gradient at x; set like x
+  bool replayed = false; ///< taken from MinimizeOptions::replay, f was not called
 };
 
 /// \brief Options of minimize(). The tolerances map one-to-one onto LBFGSpp's parameters.
@@ -59,9 +61,18 @@ struct MinimizeOptions {
   /// with the Wolfe conditions). x0 must satisfy lower <= x0 <= upper.
   std::optional<VectorX> lower, upper;
   bool store_history_x = false;  ///< keep every evaluated point in MinimizeResult::history
-  /// Called after every successful evaluation (with Evaluation::x set), before the solver goes
-  /// on. May throw; the exception propagates out of minimize().
+  /// Called after every successful evaluation (with Evaluation::x and grad set), before the
+  /// solver goes on. May throw; the exception propagates out of minimize().
   std::function<void(const Evaluation&)> on_evaluation;
+  /// Resume: evaluations recorded by an earlier run of the same problem (x, loss, grad and
+  /// seconds of each, in order from evaluation 0). The first replay.size() calls of f are
+  /// answered from the record instead of calling f; the L-BFGS iterations are pure arithmetic on
+  /// those answers, so they rebuild the earlier run's iterates and its L-BFGS history exactly,
+  /// and the run goes on from where the record ends, equal bit for bit to an uninterrupted one.
+  /// Each requested point must equal the recorded x exactly, else InputError (the record belongs
+  /// to another problem, other options or another build). Replayed evaluations reach
+  /// on_evaluation with Evaluation::replayed set.
+  std::vector<Evaluation> replay;
 };
 
 /// \brief What minimize() found.
@@ -120,16 +131,25 @@ class CountingObjective {
       throw StopMinimize{};
     }
     grad.setZero(x.size());
-    double loss = 0;
-    const auto t0 = std::chrono::steady_clock::now();
-    try {
-      loss = f_(x, grad);
-    } catch (...) {
-      pending = std::current_exception();
-      throw StopMinimize{};
+    double loss = 0, seconds = 0;
+    const bool replayed = static_cast<std::size_t>(index) < options_.replay.size();
+    if (replayed) {
+      try {
+        loss = replay(index, x, grad, seconds);
+      } catch (...) {
+        pending = std::current_exception();
+        throw StopMinimize{};
+      }
+    } else {
+      const auto t0 = std::chrono::steady_clock::now();
+      try {
+        loss = f_(x, grad);
+      } catch (...) {
+        pending = std::current_exception();
+        throw StopMinimize{};
+      }
+      seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     }
-    const double seconds =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     ++result_.evaluations;
     if (grad.size() != x.size()) {
       std::ostringstream os;
@@ -154,6 +174,8 @@ class CountingObjective {
     e.grad_norm = grad.norm();
     e.seconds = seconds;
     e.x = x;
+    e.grad = grad;
+    e.replayed = replayed;
     if (index == 0) result_.initial_loss = loss;
     if (index == 0 || loss < result_.final_loss) {
       result_.final_loss = loss;
@@ -169,9 +191,34 @@ class CountingObjective {
         throw StopMinimize{};
       }
     }
-    if (!options_.store_history_x) e.x = VectorX();
+    if (!options_.store_history_x) {
+      e.x = VectorX();
+      e.grad = VectorX();
+    }
     result_.history.push_back(std::move(e));
     return loss;
+  }
+
+  /// The recorded answer for evaluation `index`; the requested x must be the recorded one.
+  double replay(int index, const VectorX& x, VectorX& grad, double& seconds) const {
+    const Evaluation& r = options_.replay[static_cast<std::size_t>(index)];
+    std::ostringstream os;
+    os << "minimize: replaying evaluation " << index << ": ";
+    if (r.x.size() != x.size() || r.grad.size() != x.size()) {
+      os << "the record has " << r.x.size() << " coordinates and " << r.grad.size()
+         << " gradient entries, the problem has " << x.size();
+      throw InputError(os.str());
+    }
+    for (Eigen::Index i = 0; i < x.size(); ++i)
+      if (!(x[i] == r.x[i])) {
+        os.precision(17);
+        os << "the optimiser asks for x[" << i << "] = " << x[i] << ", the record has " << r.x[i]
+           << " (the record belongs to another task, other options or another build)";
+        throw InputError(os.str());
+      }
+    grad = r.grad;
+    seconds = r.seconds;
+    return r.loss;
   }
 
   /// Called by the counting line searches after each completed line search.

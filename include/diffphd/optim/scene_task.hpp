@@ -429,6 +429,7 @@ class SceneTask {
 struct TaskResult {
   std::string name;
   int evaluations = 0, iterations = 0;
+  int replayed_evaluations = 0;  ///< evaluations answered from the resume record (not simulated)
   double initial_loss = 0, final_loss = 0;
   std::vector<std::string> coordinates;  ///< coordinate names
   VectorX initial, final, truth;         ///< physical values per coordinate (truth may be empty)
@@ -439,10 +440,14 @@ struct TaskResult {
 };
 
 /// \brief Runs a task: L-BFGS (LBFGSpp), or L-BFGS-B when some parameter is bounded.
-/// `on_evaluation` (optional) sees each evaluation as it happens.
+/// `on_evaluation` (optional) sees each evaluation as it happens. `replay` (optional): the
+/// evaluations of an earlier run of the same task (x, loss, grad, seconds), answered from the
+/// record instead of simulating, so that the run resumes where that one stopped with the same
+/// L-BFGS iterates and history (MinimizeOptions::replay).
 template <int Dim, class Energy>
 TaskResult optimize_task(const TaskSpec& task,
-                         const std::function<void(const Evaluation&)>& on_evaluation = {}) {
+                         const std::function<void(const Evaluation&)>& on_evaluation = {},
+                         const std::vector<Evaluation>& replay = {}) {
   const auto t0 = std::chrono::steady_clock::now();
   SceneTask<Dim, Energy> st(task);
   MinimizeOptions mo;
@@ -456,12 +461,14 @@ TaskResult optimize_task(const TaskSpec& task,
     mo.upper = b->second;
   }
   mo.on_evaluation = on_evaluation;
+  mo.replay = replay;
   const VectorX x0 = st.initial_x();
   const MinimizeResult r =
       minimize([&](const VectorX& x, VectorX& g) { return st.evaluate(x, &g); }, x0, mo);
   TaskResult out;
   out.name = task.name;
   out.evaluations = r.evaluations;
+  out.replayed_evaluations = static_cast<int>(std::min(replay.size(), r.history.size()));
   out.iterations = r.iterations;
   out.initial_loss = r.initial_loss;
   out.final_loss = r.final_loss;
