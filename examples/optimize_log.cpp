@@ -1,7 +1,7 @@
 // The evaluation log of `diffphd optimize` and its reading for --resume (optimize_log.hpp).
 #include "optimize_log.hpp"
 
-#include <iterator>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -9,16 +9,13 @@
 #include <diffphd/core/errors.hpp>
 #include <diffphd/solver/checkpoint.hpp>
 
+#include "file_bytes.hpp"
+
 namespace diffphd::cli {
 
 using json = nlohmann::json;
 
 namespace {
-std::string file_text(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-}
-
 // j[key] as a vector; n < 0: any length (then set to it), else exactly n entries.
 VectorX vector_of(const json& j, const char* key, long& n, const std::string& path, long line) {
   const json& a = j.at(key);
@@ -39,15 +36,16 @@ VectorX vector_of(const json& j, const char* key, long& n, const std::string& pa
 }  // namespace
 
 std::uint64_t task_hash(const optim::TaskSpec& task) {
-  const std::string t = file_text(task.file), s = file_text(task.scene.file);
+  const std::string t = read_file_bytes(task.file).value_or(std::string());
+  const std::string s = read_file_bytes(task.scene.file).value_or(std::string());
   return fnv1a64(s.data(), s.size(), fnv1a64(t.data(), t.size()));
 }
 
 EvaluationLog read_evaluation_log(const std::string& path, std::uint64_t hash) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError("--resume: no evaluation log to resume from", path);
+  const std::optional<std::string> file = read_file_bytes(path);
+  if (!file) throw InputError("--resume: no evaluation log to resume from", path);
+  const std::string& text = *file;
   EvaluationLog log;
-  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   std::size_t start = 0;
   long line = 0, n = -1;
   while (start < text.size()) {

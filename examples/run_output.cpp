@@ -10,11 +10,12 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <iterator>
 #include <sstream>
 
 #include <diffphd/io/atomic_file.hpp>
 #include <diffphd/solver/checkpoint.hpp>
+
+#include "file_bytes.hpp"
 
 namespace diffphd::cli {
 
@@ -185,8 +186,7 @@ std::string stats_header(bool contact) {
 std::uint64_t scene_hash(const std::string& scene_file, const void* positions,
                          std::size_t position_bytes, const void* elements,
                          std::size_t element_bytes) {
-  std::ifstream in(scene_file, std::ios::binary);
-  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string text = read_file_bytes(scene_file).value_or(std::string());
   std::uint64_t h = fnv1a64(text.data(), text.size());
   h = fnv1a64(positions, position_bytes, h);
   return fnv1a64(elements, element_bytes, h);
@@ -290,12 +290,12 @@ void RunFiles::write_checkpoint(const json& meta, const std::string& state) cons
 
 json RunFiles::read_checkpoint(std::string& state) const {
   const std::string path = checkpoint_path();
-  std::ifstream in(path, std::ios::binary);
-  if (!in)
+  const std::optional<std::string> file = read_file_bytes(path);
+  if (!file)
     throw InputError("--resume " + dir_ +
                      ": no checkpoint.bin (the run was not started with --out there, or was "
                      "stopped before its first checkpoint: run it again without --resume)");
-  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string& bytes = *file;
   std::uint64_t n = 0;
   if (bytes.size() < sizeof kRunMagic + sizeof n ||
       bytes.compare(0, sizeof kRunMagic, kRunMagic, sizeof kRunMagic) != 0)

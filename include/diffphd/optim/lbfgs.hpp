@@ -133,23 +133,15 @@ class CountingObjective {
     grad.setZero(x.size());
     double loss = 0, seconds = 0;
     const bool replayed = static_cast<std::size_t>(index) < options_.replay.size();
-    if (replayed) {
-      try {
-        loss = replay(index, x, grad, seconds);
-      } catch (...) {
-        pending = std::current_exception();
-        throw StopMinimize{};
-      }
-    } else {
-      const auto t0 = std::chrono::steady_clock::now();
-      try {
-        loss = f_(x, grad);
-      } catch (...) {
-        pending = std::current_exception();
-        throw StopMinimize{};
-      }
-      seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const auto t0 = std::chrono::steady_clock::now();
+    try {
+      loss = replayed ? replay(index, x, grad, seconds) : f_(x, grad);
+    } catch (...) {
+      pending = std::current_exception();
+      throw StopMinimize{};
     }
+    if (!replayed)
+      seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     ++result_.evaluations;
     if (grad.size() != x.size()) {
       std::ostringstream os;
