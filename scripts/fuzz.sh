@@ -16,7 +16,7 @@ shift $(( $# > 0 ? 1 : 0 ))
 build=${DIFFPHD_FUZZ_BUILD:-$root/build-fuzz}
 jobs=${DIFFPHD_FUZZ_JOBS:-2}
 cxx=${CXX_FUZZ:-clang++-14}
-all=(fuzz_tetgen_node fuzz_tetgen_ele fuzz_gmsh fuzz_off fuzz_obj fuzz_scene)
+all=(fuzz_tetgen_node fuzz_tetgen_ele fuzz_gmsh fuzz_off fuzz_obj fuzz_scene fuzz_simulate)
 harnesses=("${@:-${all[@]}}")
 [[ $seconds =~ ^[0-9]+$ ]] || { echo "fuzz.sh: SECONDS must be a number, got '$seconds'" >&2; exit 2; }
 
@@ -36,9 +36,11 @@ seeds() {
     fuzz_gmsh) ls "$d"/*.msh "$d"/bad/*.msh ;;
     fuzz_off) ls "$d"/*.off "$d"/bad/*.off ;;
     fuzz_obj) ls "$d"/*.obj "$d"/bad/*.obj ;;
-    fuzz_scene) ls "$d"/scenes/*.json "$root"/scenes/*.json ;;
+    fuzz_scene | fuzz_simulate) ls "$d"/scenes/*.json "$root"/scenes/*.json ;;
   esac 2>/dev/null || true
-  ls "$root/tests/fuzz/seeds/${1#fuzz_}"/* 2>/dev/null || true
+  local own=${1#fuzz_}
+  [[ $own == simulate ]] && own=scene  # the same inputs: scene files
+  ls "$root/tests/fuzz/seeds/$own"/* 2>/dev/null || true
 }
 
 export TMPDIR=$build/tmp  # the harnesses' input files (and the folders of crashed runs)
@@ -50,6 +52,7 @@ for h in "${harnesses[@]}"; do
   seeds "$h" | while read -r f; do cp -n "$f" "$corpus/" 2>/dev/null || true; done
   echo "fuzz.sh: $h for $seconds s (corpus $(ls "$corpus" | wc -l) files, log $log)"
   dict=$root/tests/fuzz/${h#fuzz_}.dict opts=()
+  [[ $h == fuzz_simulate ]] && dict=$root/tests/fuzz/scene.dict
   [[ -f $dict ]] && opts+=(-dict="$dict")
   rc=0
   "$build/$h" -max_total_time="$seconds" -max_len=8192 -timeout=10 -rss_limit_mb=2048 \

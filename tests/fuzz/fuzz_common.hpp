@@ -60,6 +60,17 @@ inline void copy_data_file(const std::string& name, const std::string& as) {
   write_file(temp_path(as), reinterpret_cast<const std::uint8_t*>(text.data()), text.size());
 }
 
+/// The mesh files a fuzzed scene may name, copied beside it: two.node/two.ele (3D, two tets),
+/// square2d.node/square2d.ele (2D), box.msh (3D Gmsh 2.2) and square.msh (2D Gmsh 2.2).
+inline void copy_scene_meshes() {
+  copy_data_file("two.node", "two.node");
+  copy_data_file("two.ele", "two.ele");
+  copy_data_file("square2d.node", "square2d.node");
+  copy_data_file("square2d.ele", "square2d.ele");
+  copy_data_file("gmsh_box22.msh", "box.msh");
+  copy_data_file("gmsh_square22.msh", "square.msh");
+}
+
 /// Runs f; an InputError is the expected outcome of bad input and is swallowed (printed when
 /// the environment sets DIFFPHD_FUZZ_VERBOSE, to check what a seed reaches).
 template <class F>

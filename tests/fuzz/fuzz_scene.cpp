@@ -45,12 +45,7 @@ void build_all(const diffphd::io::SceneSpec& scene) {
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   fuzz::set_small_limits();
-  fuzz::copy_data_file("two.node", "two.node");
-  fuzz::copy_data_file("two.ele", "two.ele");
-  fuzz::copy_data_file("square2d.node", "square2d.node");
-  fuzz::copy_data_file("square2d.ele", "square2d.ele");
-  fuzz::copy_data_file("gmsh_box22.msh", "box.msh");
-  fuzz::copy_data_file("gmsh_square22.msh", "square.msh");
+  fuzz::copy_scene_meshes();
   return 0;
 }
 
