@@ -346,7 +346,8 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   gradcheck->add_flag("--json", gc_json, "Print one JSON object on stdout");
 
-  std::string bb_scene, bb_out, bb_filters = "none,clamp,abs,trust-region", bb_methods = "gmres";
+  std::string bb_scene, bb_out, bb_filters = "none,clamp,abs,trust-region";
+  std::string bb_methods = "deflated-pcg";
   diffphd::cli::BenchBackwardArgs bb;
   std::optional<double> bb_eps, bb_contrast;
   bool bb_json = false, bb_no_progress = false;
@@ -356,7 +357,8 @@ int main(int argc, char** argv) {
   bench_bw->add_option("--frames", bb.frames, "Frames (default 10)")->check(CLI::PositiveNumber);
   bench_bw->add_option("--filters", bb_filters, "Comma list (default none,clamp,abs,trust-region)");
   bench_bw->add_option("--methods", bb_methods,
-                       "Comma list of gmres, fixed-point, deflated-pcg (alias pcg; default gmres)");
+                       "Comma list of gmres, fixed-point, deflated-pcg (alias pcg; default deflated-pcg, "
+                       "the library's default)");
   bench_bw->add_option("--eps-rel", bb_eps, "Forward tolerance (default: the scene's)")
       ->check(CLI::PositiveNumber);
   bench_bw->add_option("--adjoint-tolerance", bb.tolerance, "Adjoint tolerance (default 1e-8)")
