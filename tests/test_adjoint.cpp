@@ -475,7 +475,7 @@ TEST_CASE(
 }
 
 TEST_CASE(
-    "GMRES and the fixed-point adjoint give the same gradient; GMRES needs fewer "
+    "GMRES and the fixed-point adjoint give the same gradient, GMRES needs fewer "
     "iterations",
     "[adjoint]") {
   Problem<3, Energies<Corotated, Volume>> prob;

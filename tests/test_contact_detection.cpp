@@ -848,7 +848,7 @@ TEST_CASE("mesh contacts match a brute-force detection on a random-ish configura
   }
 }
 
-TEST_CASE("self-contact of a folded bar; incident and rest-near facets are excluded",
+TEST_CASE("self-contact of a folded bar, incident and rest-near facets are excluded",
           "[contact][detect]") {
   const double cd = 0.01;
   const auto mesh = make_box<3>(Vec<3>(0, 0, 0), Vec<3>(2, 0.1, 0.1), Eigen::Vector3i(20, 1, 1));

@@ -60,7 +60,7 @@ Worst run(ContactScene& sim, int steps, double complementarity_tol) {
 }
 }  // namespace
 
-TEST_CASE("ball_drop scene: no penetration, cone and complementarity at every step; it lands",
+TEST_CASE("ball_drop scene: no penetration, cone and complementarity at every step, it lands",
           "[contact][scene]") {
   for (const char* name : {"ball_drop.json", "ball_drop_hetero.json"}) {
     const io::SceneSpec scene = io::load_scene(kScenes + name);

@@ -223,7 +223,7 @@ TEST_CASE("Gmsh: 2.2, 4.1 and parametric 4.1 files of the same box give the same
   CHECK(io::read_gmsh<3>(kData + "gmsh_box41.msh").num_vertices() == m41.mesh.num_vertices());
 }
 
-TEST_CASE("Gmsh: 2D files; a clockwise surface is flipped as a whole", "[io][gmsh]") {
+TEST_CASE("Gmsh: 2D files, a clockwise surface is flipped as a whole", "[io][gmsh]") {
   // gmsh_square.geo: surface 1 is counterclockwise, surface 2 clockwise (Gmsh meshes it CW).
   const auto m22 = io::read_gmsh_with_regions<2>(kData + "gmsh_square22.msh");
   const auto m41 = io::read_gmsh_with_regions<2>(kData + "gmsh_square41.msh");
@@ -288,7 +288,7 @@ TEST_CASE("Gmsh: write_gmsh22 round trip in 2D and 3D", "[io][gmsh]") {
 
 // ---- dispatch ----------------------------------------------------------------------------
 
-TEST_CASE("read_mesh dispatches by extension; mesh_dimension peeks", "[io]") {
+TEST_CASE("read_mesh dispatches by extension, mesh_dimension peeks", "[io]") {
   CHECK(io::mesh_dimension(kData + "two.node") == 3);
   CHECK(io::mesh_dimension(kData + "two.ele") == 3);
   CHECK(io::mesh_dimension(kData + "square2d.node") == 2);

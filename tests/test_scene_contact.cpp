@@ -339,7 +339,7 @@ TEST_CASE("multi-body scene: has_contact and contact defaults", "[scene][contact
   CHECK(!io::has_contact(empty));
 }
 
-TEST_CASE("single-body scenes are unchanged; body selectors work on them", "[scene][contact]") {
+TEST_CASE("single-body scenes are unchanged, body selectors work on them", "[scene][contact]") {
   const io::SceneSpec s = io::load_scene(kData + "good_small.json");
   REQUIRE(s.bodies.size() == 1);
   CHECK(s.body_names == std::vector<std::string>{"mesh"});
@@ -810,7 +810,7 @@ TEST_CASE("multi-body build-time errors name the file and the JSON path",
 
 // ---- the shipped contact scenes -------------------------------------------------------------
 
-TEST_CASE("every scene in scenes/ loads and builds; contact scenes use the contact settings",
+TEST_CASE("every scene in scenes/ loads and builds, contact scenes use the contact settings",
           "[scene][contact]") {
   int contact_scenes = 0, scenes = 0;
   for (const auto& entry : fs::directory_iterator(kScenes)) {

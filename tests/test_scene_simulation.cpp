@@ -336,7 +336,7 @@ bool on_plus_x(const io::MuscleGroupSpec& g) {
 }  // namespace
 
 TEST_CASE(
-    "shipped routing_tendon: at rest activations the beam stays put; contracting one "
+    "shipped routing_tendon: at rest activations the beam stays put, contracting one "
     "side's straight fibres bends it towards that side, symmetrically",
     "[scene][physics][muscle]") {
   const io::SceneSpec scene = io::load_scene(kScenes + "routing_tendon.json");
@@ -424,7 +424,7 @@ TEST_CASE("SceneRunner: muscle accessors and the energy / solver checks", "[scen
         plain.mesh().num_elements());
 }
 
-TEST_CASE("SceneRunner: prepare_step + the solver's step is step(); restart replays a run",
+TEST_CASE("SceneRunner: prepare_step + the solver's step is step(), restart replays a run",
           "[scene][solver]") {
   // cantilever_twist: a driver from t = 0 (added by the first prepare_step) and no forces;
   // cantilever_axial: a force from t = 0.
