@@ -226,8 +226,9 @@ int main(int argc, char** argv) {
                   "(docs/solver.md)")
       ->check(CLI::IsMember({"auto", "pd", "newton-krylov", "lbfgs", "newton-direct"}));
   run->add_option("--volume-weight", volume_weight,
-                  "Volume term weight: lambda (w = lambda, default) | lame (w = d lambda: "
-                  "small-strain Lame parameters; docs/energies.md)")
+                  "Volume term weight (default: the scene's solver.volume_weight, \"lame\" "
+                  "unless set): lame (w = d lambda: each element's Lame parameters at small "
+                  "strain; docs/energies.md) | lambda (w = lambda, DiffPD's)")
       ->check(CLI::IsMember({"lambda", "lame"}));
   run->add_flag("--no-frames", no_frames, "Write stats and summary only");
   int checkpoint_every = 10;

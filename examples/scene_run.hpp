@@ -123,7 +123,10 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   info["dim"] = Dim;
   info["energy"] = io::to_string(scene.solver.energy);
   info["routing"] = io::to_string(routing);
-  info["volume_weight"] = to_string(so.volume_weight);
+  // null where the energy has no Volume term (the weight means nothing there)
+  info["volume_weight"] = io::has_volume_term(scene.solver.energy)
+                              ? json(to_string(so.volume_weight))
+                              : json(nullptr);
   info["contrast"] = materials.stiffness_contrast();
   info["anderson_window"] = sim.anderson_window();
   info["eps_rel"] = so.eps_rel;

@@ -26,8 +26,10 @@ cmake -S "$root/tests/fuzz" -B "$build" -G Ninja -DCMAKE_CXX_COMPILER="$cxx" >/d
 ninja -C "$build" -j"$jobs" "${harnesses[@]}"
 echo "fuzz.sh: built ${#harnesses[@]} harnesses in $((SECONDS - start)) s"
 
-# Seeds: the files of tests/data (good and bad) each harness reads, plus tests/fuzz/seeds;
-# tests/fuzz/NAME.dict (fuzz_NAME) is passed as a libFuzzer dictionary.
+# Seeds: the files of tests/data (good and bad) each harness reads, plus tests/fuzz/seeds/NAME;
+# tests/fuzz/NAME.dict is passed as a libFuzzer dictionary. NAME is the harness's name without
+# "fuzz_", except that fuzz_simulate reads what fuzz_scene reads (scene files).
+inputs() { [[ $1 == fuzz_simulate ]] && echo scene || echo "${1#fuzz_}"; }
 seeds() {
   local d=$root/tests/data
   case $1 in
@@ -38,9 +40,7 @@ seeds() {
     fuzz_obj) ls "$d"/*.obj "$d"/bad/*.obj ;;
     fuzz_scene | fuzz_simulate) ls "$d"/scenes/*.json "$root"/scenes/*.json ;;
   esac 2>/dev/null || true
-  local own=${1#fuzz_}
-  [[ $own == simulate ]] && own=scene  # the same inputs: scene files
-  ls "$root/tests/fuzz/seeds/$own"/* 2>/dev/null || true
+  ls "$root/tests/fuzz/seeds/$(inputs "$1")"/* 2>/dev/null || true
 }
 
 export TMPDIR=$build/tmp  # the harnesses' input files (and the folders of crashed runs)
@@ -51,8 +51,7 @@ for h in "${harnesses[@]}"; do
   mkdir -p "$corpus" "$artifacts" "$(dirname "$log")"
   seeds "$h" | while read -r f; do cp -n "$f" "$corpus/" 2>/dev/null || true; done
   echo "fuzz.sh: $h for $seconds s (corpus $(ls "$corpus" | wc -l) files, log $log)"
-  dict=$root/tests/fuzz/${h#fuzz_}.dict opts=()
-  [[ $h == fuzz_simulate ]] && dict=$root/tests/fuzz/scene.dict
+  dict=$root/tests/fuzz/$(inputs "$h").dict opts=()
   [[ -f $dict ]] && opts+=(-dict="$dict")
   rc=0
   "$build/$h" -max_total_time="$seconds" -max_len=8192 -timeout=10 -rss_limit_mb=2048 \

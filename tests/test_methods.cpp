@@ -131,7 +131,8 @@ void check_derivatives(double contrast) {
 template <int Dim, class E>
 VertexMatrix<Dim> twisted_run(double contrast, SolverMethod m, double eps, int steps,
                               const VertexMatrix<Dim>* offset = nullptr,
-                              std::vector<int>* iterations = nullptr) {
+                              std::vector<int>* iterations = nullptr,
+                              Forcing forcing = Forcing::Sqrt) {
   SimplicialMesh<Dim> mesh = small_mesh<Dim>();
   if (offset) mesh = SimplicialMesh<Dim>(mesh.rest_positions() + *offset, mesh.elements());
   MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000, 0});
@@ -144,6 +145,7 @@ VertexMatrix<Dim> twisted_run(double contrast, SolverMethod m, double eps, int s
   o.eps_abs = 0;
   o.max_iterations = m == SolverMethod::PD ? 200000 : 200;
   o.h = 1.0 / 60;
+  o.newton.forcing = forcing;
   Solver<Dim, E> s(mesh, mats, o);
   s.fix_vertices(vertices_at_x(mesh, x0));
   Driver<Dim> d;
@@ -296,6 +298,10 @@ TEST_CASE("Newton-Krylov, L-BFGS and PD agree with direct Newton", "[methods]") 
     // At 1e6x both stop at the round-off floor of grad Phi (GradientTest), which bounds their
     // agreement at ~1.5e-8 of the displacement (measured); at 1x it is far below 1e-8.
     CHECK((nk - ref).cwiseAbs().maxCoeff() <= (contrast > 1 ? 3e-8 : 1e-8) * scale);
+    // The Eisenstat-Walker forcing term changes the inner tolerances, not the answer.
+    const auto ew = twisted_run<3, CoroVol>(contrast, SolverMethod::NewtonKrylov, 1e-12, 3,
+                                            nullptr, nullptr, Forcing::EisenstatWalker);
+    CHECK((ew - ref).cwiseAbs().maxCoeff() <= (contrast > 1 ? 3e-8 : 1e-8) * scale);
     if (contrast == 1.0) {
       // L-BFGS and PD stall at 1e6x (the reason Newton-Krylov exists): compared at 1x.
       const auto lb = twisted_run<3, CoroVol>(contrast, SolverMethod::LBFGS, 1e-10, 3);
@@ -311,6 +317,27 @@ TEST_CASE("Newton-Krylov, L-BFGS and PD agree with direct Newton", "[methods]") 
   CHECK((nk2 - ref2).cwiseAbs().maxCoeff() <= 3e-8 * scale2);
 }
 
+TEST_CASE("The stall watch stops on no progress, not on a gradient that swings while Phi falls",
+          "[methods]") {
+  // Stuck: neither ||g|| halves nor Phi falls beyond its round-off for `window` iterations.
+  detail::StallWatch flat{10};
+  int stopped_at = -1;
+  for (int i = 0; i < 30 && stopped_at < 0; ++i)
+    if (flat.stalled(1.0 + 0.1 * (i % 2), 0.02 - 1e-13 * i)) stopped_at = i;
+  CHECK(stopped_at == 10);  // the first call sets the references, ten more without progress
+  // Progress: ||g|| swings by 10x without halving its best, Phi falls by 1e-6 per iteration
+  // (projected Newton on cantilever_twist at 1e6x, measured): no stop.
+  detail::StallWatch swinging{10};
+  bool stalled = false;
+  for (int i = 0; i < 40; ++i) stalled |= swinging.stalled(i % 2 ? 1e3 : 1e2, 0.02 - 1e-6 * i);
+  CHECK_FALSE(stalled);
+  // Halving ||g|| alone is progress too (Phi flat at its round-off near convergence).
+  detail::StallWatch halving{10};
+  stalled = false;
+  for (int i = 0; i < 40; ++i) stalled |= halving.stalled(std::pow(0.5, i), 0.02);
+  CHECK_FALSE(stalled);
+}
+
 TEST_CASE("The gradient test gives the same iterations for a body translated by 100 m",
           "[methods]") {
   const Index nv = small_mesh<3>().num_vertices();
@@ -324,9 +351,11 @@ TEST_CASE("The gradient test gives the same iterations for a body translated by 
       CHECK(near_its == far_its);
     } else {
       // Anderson's extrapolation amplifies the round-off of coordinates near 100 m: the
-      // counts (~800 per step at 100x) agree to a few percent, not exactly.
+      // counts agree to a fraction, not exactly (under the volume weight "lambda", ~800 per
+      // step at 100x, within 5%; under the default "lame", ~1350-1500 per step, differences
+      // 15, 328 and 46 measured: within 25%). The answer agrees to 1e-7 below either way.
       for (size_t i = 0; i < near_its.size(); ++i)
-        CHECK(std::abs(near_its[i] - far_its[i]) <= 0.05 * near_its[i]);
+        CHECK(std::abs(near_its[i] - far_its[i]) <= 0.25 * near_its[i]);
     }
     CHECK((far - off - near).cwiseAbs().maxCoeff() <= 1e-7);
   }

@@ -510,7 +510,9 @@ TEST_CASE("scene: every generator builds", "[scene]") {
 
 TEST_CASE("scene: solver.volume_weight", "[scene][volume-weight]") {
   namespace fs = std::filesystem;
-  CHECK(io::load_scene(kScenes + "demo.json").solver.volume_weight == VolumeWeight::Lambda);
+  // The default is "lame" (each element's own Lame parameters at small strain; docs/energies.md).
+  CHECK(io::load_scene(kScenes + "demo.json").solver.volume_weight == VolumeWeight::Lame);
+  CHECK(io::SolverSpec{}.volume_weight == VolumeWeight::Lame);
   CHECK(io::has_volume_term(io::EnergyKind::CorotatedVolume));
   CHECK(io::has_volume_term(io::EnergyKind::CorotatedVolumeMuscle));
   CHECK_FALSE(io::has_volume_term(io::EnergyKind::Corotated));
@@ -530,10 +532,12 @@ TEST_CASE("scene: solver.volume_weight", "[scene][volume-weight]") {
     return io::load_scene(file.string());
   };
   CHECK(load(R"({"volume_weight": "lame"})").solver.volume_weight == VolumeWeight::Lame);
+  CHECK(load(R"({"volume_weight": "lambda"})").solver.volume_weight == VolumeWeight::Lambda);
   CHECK(load(R"({"volume_weight": "lambda", "energy": "corotated+volume"})").solver.volume_weight ==
         VolumeWeight::Lambda);
+  CHECK(load(R"({"energy": "corotated+volume"})").solver.volume_weight == VolumeWeight::Lame);
   CHECK(load(R"({"energy": "corotated", "routing": "uniform"})").solver.volume_weight ==
-        VolumeWeight::Lambda);
+        VolumeWeight::Lame);  // the default; ignored without the Volume term
   CHECK_THROWS_WITH(load(R"({"volume_weight": "Lame"})"),
                     Contains("solver.volume_weight: unknown volume weight \"Lame\" (expected "
                              "\"lambda\" or \"lame\")"));

@@ -27,11 +27,21 @@ namespace fs = std::filesystem;
 const std::string kScenes = std::string(DIFFPHD_SOURCE_DIR) + "/scenes/";
 const std::string kData = std::string(DIFFPHD_SOURCE_DIR) + "/tests/data/scenes/";
 
-fs::path temp_dir() {
-  // One folder per process: CTest runs the cases of this file as parallel processes.
-  const fs::path d = fs::temp_directory_path() / ("diffphd_test_scene_contact_" + std::to_string(::getpid()));
-  fs::create_directories(d);
-  return d;
+/// One folder per process (CTest runs the cases of this file as parallel processes), removed
+/// when the process exits.
+struct ScratchDir {
+  fs::path path = fs::temp_directory_path() /
+                  ("diffphd_test_scene_contact_" + std::to_string(::getpid()));
+  ScratchDir() { fs::create_directories(path); }
+  ~ScratchDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+
+const fs::path& temp_dir() {
+  static ScratchDir d;
+  return d.path;
 }
 
 std::string write_scene(const json& j, const std::string& name) {
@@ -1022,5 +1032,4 @@ TEST_CASE("shipped contact scenes: sword and sphere, gripper and cube", "[scene]
     CHECK(s.output.frames == 100);
     CHECK(s.h == 0.01);
   }
-  std::filesystem::remove_all(temp_dir());
 }

@@ -149,46 +149,49 @@ AxialResult settle_cantilever_axial(const io::SceneSpec& scene, const SceneOverr
 }
 }  // namespace
 
-TEST_CASE("shipped cantilever_axial: static elongation against the closed form",
-          "[scene][physics]") {
+TEST_CASE("shipped cantilever_axial under volume_weight \"lambda\": static elongation against "
+          "the closed form",
+          "[scene][physics][volume-weight]") {
   // Three segments in series under an end load F (100 N), clamped at x = 0; the scene's mass
-  // damping settles it. Corotated (w = 2 mu) + Volume (w = lambda) is, at small strain, linear
+  // damping settles it. Corotated (w = 2 mu) + Volume with DiffPD's weight w = lambda
+  // (VolumeWeight::Lambda, set explicitly: the default is "lame") is, at small strain, linear
   // elasticity with mu and lambda' = lambda / 3 (the Volume term w/2 ||F - P_det1(F)||^2 is
   // lambda/6 (tr eps)^2; docs/energies.md), so each segment stretches F L_i / (A E'_i) with
   // E' = mu (3 lambda' + 2 mu) / (lambda' + mu). The mean end-face displacement must match that
   // within 3% (clamp and end effects), and the stiff middle third must carry 1/10 of the soft
   // thirds' strain.
   const io::SceneSpec scene = io::load_scene(kScenes + "cantilever_axial.json");
-  const auto [tip, soft_strain, stiff_strain] = settle_cantilever_axial(scene, {});
+  SceneOverrides over;
+  over.volume_weight = VolumeWeight::Lambda;
+  const auto [tip, soft_strain, stiff_strain] = settle_cantilever_axial(scene, over);
   const double E = scene.default_material.youngs_modulus, nu = scene.default_material.poisson_ratio;
   const double mu = E / (2 * (1 + nu)), lambda = E * nu / ((1 + nu) * (1 - 2 * nu)) / 3.0;
   const double E_model = mu * (3 * lambda + 2 * mu) / (lambda + mu);
   const double F = 100.0, A = 0.1 * 0.1, L = 1.0, C = scene.contrast.factor;
   const double theory = F / A * (2.0 / 3.0 * L / E_model + 1.0 / 3.0 * L / (C * E_model));
-  WARN("cantilever_axial: tip " << tip << " m, closed form " << theory << " m (error "
-                                << 100 * (tip / theory - 1) << " %); strain soft/stiff "
-                                << soft_strain / stiff_strain);
+  WARN("cantilever_axial, volume_weight lambda: tip "
+       << tip << " m, closed form " << theory << " m (error " << 100 * (tip / theory - 1)
+       << " %); strain soft/stiff " << soft_strain / stiff_strain);
   CHECK(std::abs(tip / theory - 1) < 0.03);
   CHECK(soft_strain / stiff_strain == Approx(C).epsilon(0.05));
 }
 
-TEST_CASE("shipped cantilever_axial under volume_weight \"lame\": the nominal elongation",
+TEST_CASE("shipped cantilever_axial: static elongation against the nominal closed form",
           "[scene][physics][volume-weight]") {
-  // The scene above with Volume's weight d lambda (SceneOverrides::volume_weight, the scene key
+  // The scene as shipped: Volume's default weight is d lambda (VolumeWeight::Lame, the scene key
   // solver.volume_weight): at small strain Corotated + Volume is then linear elasticity with each
   // element's own (mu, lambda), so the end face moves F/A (2/3 L/E + 1/3 L/(10 E)) = 7.0 mm with
-  // the nominal E (the default weight gives 7.8 mm, the Newton reference 7.0 mm).
+  // the nominal E (the weight "lambda" gives 7.8 mm, the Newton reference 7.0 mm).
   const io::SceneSpec scene = io::load_scene(kScenes + "cantilever_axial.json");
-  SceneOverrides over;
-  over.volume_weight = VolumeWeight::Lame;
-  const auto [tip, soft_strain, stiff_strain] = settle_cantilever_axial(scene, over);
+  REQUIRE(scene.solver.volume_weight == VolumeWeight::Lame);
+  REQUIRE(SolverOptions{}.volume_weight == VolumeWeight::Lame);  // the library's default too
+  const auto [tip, soft_strain, stiff_strain] = settle_cantilever_axial(scene, {});
   const double E = scene.default_material.youngs_modulus;
   const double F = 100.0, A = 0.1 * 0.1, L = 1.0, C = scene.contrast.factor;
   const double theory = F / A * (2.0 / 3.0 * L / E + 1.0 / 3.0 * L / (C * E));
-  WARN("cantilever_axial, volume_weight lame: tip " << tip << " m, nominal closed form " << theory
-                                                    << " m (error " << 100 * (tip / theory - 1)
-                                                    << " %); strain soft/stiff "
-                                                    << soft_strain / stiff_strain);
+  WARN("cantilever_axial (default volume_weight lame): tip "
+       << tip << " m, nominal closed form " << theory << " m (error " << 100 * (tip / theory - 1)
+       << " %); strain soft/stiff " << soft_strain / stiff_strain);
   CHECK(std::abs(tip / theory - 1) < 0.03);
   CHECK(soft_strain / stiff_strain == Approx(C).epsilon(0.05));
 }

@@ -12,10 +12,10 @@ namespace diffphd {
 /// solver.volume_weight). At small strain Corotated (w = 2 mu) plus Volume (w = c lambda) is
 /// linear elasticity with Lame parameters (mu, c lambda / Dim) (docs/energies.md).
 enum class VolumeWeight {
-  /// "lambda" (default): w = lambda_e, DiffPD's weight; small-strain Lame (mu, lambda / Dim).
+  /// "lambda": w = lambda_e, DiffPD's weight; small-strain Lame (mu, lambda / Dim).
   Lambda,
-  /// "lame": w = Dim lambda_e, so that Corotated + Volume has each element's own Lame
-  /// parameters (mu, lambda) at small strain.
+  /// "lame" (the default of SolverOptions and of scene files): w = Dim lambda_e, so that
+  /// Corotated + Volume has each element's own Lame parameters (mu, lambda) at small strain.
   Lame,
 };
 
@@ -38,8 +38,8 @@ inline double volume_scale(VolumeWeight v, int dim) {
   return v == VolumeWeight::Lame ? double(dim) : 1.0;
 }
 
-/// \brief Volume PD term, w = volume_scale lambda (1 by default, VolumeWeight), p = argmin_{det p
-/// = 1} ||F - p||.
+/// \brief Volume PD term, w = volume_scale lambda (ElementParams::volume_scale; the solver sets
+/// it from VolumeWeight, Dim by default), p = argmin_{det p = 1} ||F - p||.
 ///
 /// In stretch space: s* = argmin ||s - sigma||^2 subject to prod s = 1, s > 0, and
 /// p = U diag(s*) V^T. Solved in log-stretches x = ln s on the hyperplane sum x = 0 by Newton

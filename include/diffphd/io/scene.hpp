@@ -408,9 +408,9 @@ struct ContactSpec {
 struct SolverSpec {
   EnergyKind energy = EnergyKind::CorotatedVolume;
   Routing routing = Routing::StiffnessAware;
-  /// Volume's weight: "lambda" (w = lambda_e, default) or "lame" (w = d lambda_e); only for
-  /// energies with the Volume term (has_volume_term)
-  VolumeWeight volume_weight = VolumeWeight::Lambda;
+  /// Volume's weight: "lame" (w = d lambda_e, default) or "lambda" (w = lambda_e, DiffPD's);
+  /// only for energies with the Volume term (has_volume_term), ignored by the others
+  VolumeWeight volume_weight = VolumeWeight::Lame;
   int anderson_window = -1;  ///< -1: automatic (m = 1 heterogeneous, 5 homogeneous); 0: off
   double anderson_reset = 10.0;  ///< discard the AA history when |gamma| exceeds this (> 0)
   double eps_rel = 1e-4;     ///< relative tolerance of the convergence test, > 0

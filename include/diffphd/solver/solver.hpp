@@ -151,9 +151,10 @@ struct SolverOptions {
   SolverMethod method = SolverMethod::Auto;  ///< iteration of a step (docs/solver.md, "Methods")
   MethodOptions newton;                     ///< Newton-Krylov, direct Newton and L-BFGS options
   WeightRouting routing = WeightRouting::StiffnessAware;
-  /// Volume's weight: lambda_e (default, DiffPD's) or Dim lambda_e (small-strain consistent
-  /// Lame parameters; docs/energies.md). No effect on energies without the Volume term.
-  VolumeWeight volume_weight = VolumeWeight::Lambda;
+  /// Volume's weight: Dim lambda_e (default: each element's own Lame parameters at small
+  /// strain, the closer model; docs/energies.md) or lambda_e (DiffPD's). No effect on energies
+  /// without the Volume term.
+  VolumeWeight volume_weight = VolumeWeight::Lame;
   InitialGuess initial_guess = InitialGuess::Inertial;  ///< first iterate of a step
   /// Convergence test of pd: the gradient test by default (eps_rel bounds the solver error);
   /// eq. (22) as printed and the step-relative increment gate remain as options. The other
@@ -416,7 +417,7 @@ class Solver {
     const auto t_start = std::chrono::steady_clock::now();
     StepReport rep;
     prepare_system();
-    const double h = options_.h, t1 = t_ + h;
+    const double h = options_.h;
     Vector q_t, qtil, rhs0;
     Index bad = -1;
     if (!setup_step(q_t, qtil, rhs0, &bad))
@@ -437,15 +438,7 @@ class Solver {
     } else {
       if (!iterate_minimiser(potential, q, rep, q_prev, t_start)) return rep;
     }
-    // Commit: v_{t+h} = (q_{t+h} - q_t) / h.
-    for (Index v = 0; v < nv_; ++v)
-      for (int k = 0; k < Dim; ++k) {
-        const Index i = Dim * v + k;
-        velocities_(v, k) = (q[i] - q_t[i]) / h;
-        positions_(v, k) = q[i];
-      }
-    t_ = t1;
-    last_iterate_prev_ = q_prev;
+    commit_step(q, q_t, std::move(q_prev));
     rep.seconds = detail::seconds_since(t_start);
     return rep;
   }
@@ -755,6 +748,20 @@ class Solver {
     break;
     }
     return true;
+  }
+
+  /// The step's commit: q_{t+h} = q, v_{t+h} = (q - q_t) / h, t += h; q_prev (the iterate
+  /// before q) is kept for the adjoint's warm start.
+  void commit_step(const Vector& q, const Vector& q_t, Vector q_prev) {
+    const double h = options_.h;
+    for (Index v = 0; v < nv_; ++v)
+      for (int k = 0; k < Dim; ++k) {
+        const Index i = Dim * v + k;
+        velocities_(v, k) = (q[i] - q_t[i]) / h;
+        positions_(v, k) = q[i];
+      }
+    t_ += h;
+    last_iterate_prev_ = std::move(q_prev);
   }
 
   /// The step's set-up: Dirichlet values at t + h (xfix_), q_t, the inertial target q~ of
