@@ -58,9 +58,10 @@ int cmd_bench(const BenchOptions& opt) {
   namespace fs = std::filesystem;
   for (const std::string& m : opt.methods)
     if (m != "diffphd" && m != "pd" && m != "newton" && m != "newton-krylov" && m != "lbfgs" &&
-        m != "pd-anderson")
+        m != "pd-anderson" && m != "newton-lagged" && m != "newton-direct")
       throw InputError("--methods: unknown method \"" + m +
-                       "\" (diffphd, pd, newton, newton-krylov, lbfgs, pd-anderson)");
+                       "\" (diffphd, pd, newton, newton-krylov, newton-lagged, newton-direct, "
+                       "lbfgs, pd-anderson)");
   if (opt.tolerances.empty()) throw InputError("--tolerances: give at least one");
   for (double t : opt.tolerances)
     if (!(t > 0 && std::isfinite(t))) throw InputError("--tolerances: must be > 0");
@@ -80,7 +81,8 @@ int cmd_bench(const BenchOptions& opt) {
     return std::find(opt.methods.begin(), opt.methods.end(), m) != opt.methods.end();
   };
   const bool need_diffphd_ref = runs("diffphd") || runs("newton-krylov") || runs("lbfgs") ||
-                                runs("pd-anderson") || opt.features,
+                                runs("pd-anderson") || runs("newton-lagged") ||
+                                runs("newton-direct") || opt.features,
              need_pd_ref = runs("pd");
   const long runs_per_contrast = 1 + need_diffphd_ref + need_pd_ref +
                                  static_cast<long>(opt.methods.size() * opt.tolerances.size()) +
@@ -209,6 +211,8 @@ int cmd_bench(const BenchOptions& opt) {
           }
           if (m == "pd-anderson") o.method = SolverMethod::PD;
           if (m == "newton-krylov") o.method = SolverMethod::NewtonKrylov;
+          if (m == "newton-lagged") o.method = SolverMethod::NewtonLagged;
+          if (m == "newton-direct") o.method = SolverMethod::NewtonDirect;
           if (m == "lbfgs") o.method = SolverMethod::LBFGS;
           add(m, tol, bench_pd_dispatch(scene, o, frames), m == "pd");
         }

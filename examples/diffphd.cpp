@@ -222,9 +222,10 @@ int main(int argc, char** argv) {
                   "iterate's) | paper (eq. 22 as printed) | step-relative (pd only)")
       ->check(CLI::IsMember({"gradient", "paper", "step-relative"}));
   run->add_option("--method", method,
-                  "Forward method: auto | pd | newton-krylov | lbfgs | newton-direct "
-                  "(docs/solver.md)")
-      ->check(CLI::IsMember({"auto", "pd", "newton-krylov", "lbfgs", "newton-direct"}));
+                  "Forward method: auto | pd | newton-krylov | lbfgs | newton-direct | "
+                  "newton-lagged (docs/solver.md)")
+      ->check(CLI::IsMember(
+          {"auto", "pd", "newton-krylov", "lbfgs", "newton-direct", "newton-lagged"}));
   run->add_option("--volume-weight", volume_weight,
                   "Volume term weight (default: the scene's solver.volume_weight, \"lame\" "
                   "unless set): lame (w = d lambda: each element's Lame parameters at small "
@@ -254,7 +255,8 @@ int main(int argc, char** argv) {
       "bench", "Run methods on one scene against a converged Newton reference (results.csv)");
   bench->add_option("SCENE", bench_opt.scene_path, "Scene file (JSON)")->required();
   bench->add_option("--methods", methods_csv, "Comma list of diffphd (the scene's settings), pd (DiffPD-style baseline), newton "
-                    "(Neo-Hookean projected Newton), newton-krylov, lbfgs, pd-anderson (the scene's "
+                    "(Neo-Hookean projected Newton), newton-krylov, newton-lagged, newton-direct, lbfgs, "
+                    "pd-anderson (the scene's "
                     "model by that method) (default diffphd,pd,newton)");
   bench->add_option("--tolerances", tolerances_csv,
                     "Comma list: eps_rel of the PD methods, gradient tolerance of Newton "

@@ -218,7 +218,8 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
   bar.finish();
 
   json j = run_summary(info, tot, WithContact, failure, failure.empty() ? frames : f - 1, true);
-  j["factorizations"] = sim.factorization_count();
+  j["factorizations"] = sim.factorization_count();  // of A
+  j["hessian_factorizations"] = sim.lagged_hessian().refreshes;  // newton-lagged's
   if (files) files->write_summary(j);
   return j;
 }

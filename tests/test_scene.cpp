@@ -16,6 +16,8 @@
 #include <diffphd/io/plant.hpp>
 #include <diffphd/io/scene.hpp>
 
+#include "support/scene_errors.hpp"
+
 using Catch::Contains;
 using namespace diffphd;
 
@@ -81,18 +83,7 @@ std::set<int> labels(const MaterialField& m) {
 
 /// Loads `path` and expects an InputError that names the file first ("PATH: ...") and contains
 /// every one of `expect`.
-void check_load_error(const std::string& path, const std::vector<std::string>& expect) {
-  try {
-    io::load_scene(path);
-    FAIL("no InputError");
-  } catch (const InputError& e) {
-    const std::string what = e.what();
-    INFO(what);
-    CHECK(e.file() == path);
-    CHECK(what.rfind(path + ": ", 0) == 0);
-    for (const std::string& x : expect) CHECK_THAT(what, Contains(x));
-  }
-}
+using test::check_load_error;
 
 }  // namespace
 
@@ -267,16 +258,7 @@ TEST_CASE("scene: bad input names the file and the JSON path", "[scene][errors]"
   for (const Case& c : cases) {
     const std::string path = kBad + c.file + ".json";
     INFO(path);
-    try {
-      io::load_scene(path);
-      FAIL("no InputError for " << path);
-    } catch (const InputError& e) {
-      const std::string what = e.what();
-      INFO(what);
-      CHECK(e.file() == path);
-      CHECK(what.rfind(path + ": ", 0) == 0);
-      for (const char* s : c.expect) CHECK_THAT(what, Contains(s));
-    }
+    check_load_error(path, std::vector<std::string>(c.expect.begin(), c.expect.end()));
   }
   SECTION("the resolved mesh path, not the one written") {
     CHECK_THROWS_WITH(io::load_scene(kBad + "bad_mesh_missing.json"),

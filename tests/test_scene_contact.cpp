@@ -17,6 +17,8 @@
 
 #include <diffphd/io/scene.hpp>
 
+#include "support/scene_errors.hpp"
+
 using Catch::Contains;
 using namespace diffphd;
 using json = nlohmann::json;
@@ -70,17 +72,8 @@ json three_bodies() {
 /// load_scene(j) must fail with an InputError naming the file first and containing `expect`.
 void expect_error(const json& j, const std::vector<std::string>& expect,
                   const std::string& name = "bad") {
-  const std::string path = write_scene(j, name);
-  try {
-    io::load_scene(path);
-    FAIL("no InputError for " << j.dump());
-  } catch (const InputError& e) {
-    const std::string what = e.what();
-    INFO(what);
-    CHECK(e.file() == path);
-    CHECK(what.rfind(path + ": ", 0) == 0);
-    for (const std::string& s : expect) CHECK_THAT(what, Contains(s));
-  }
+  INFO(j.dump());
+  test::check_load_error(write_scene(j, name), expect);
 }
 
 /// fn(scene) must fail with an InputError naming the scene file and containing `expect`.
@@ -88,16 +81,7 @@ void expect_build_error(const json& j, const std::function<void(const io::SceneS
                         const std::string& expect) {
   const std::string path = write_scene(j, "build");
   const io::SceneSpec s = io::load_scene(path);
-  try {
-    fn(s);
-    FAIL("no InputError");
-  } catch (const InputError& e) {
-    const std::string what = e.what();
-    INFO(what);
-    CHECK(e.file() == path);
-    CHECK(what.rfind(path + ": ", 0) == 0);
-    CHECK_THAT(what, Contains(expect));
-  }
+  test::check_file_error(path, [&] { fn(s); }, {expect});
 }
 
 std::vector<Index> range(Index a, Index b) {

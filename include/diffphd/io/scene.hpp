@@ -109,8 +109,9 @@ inline const char* to_string(Gate g) {
 
 /// The scene-file names of the forward methods ("method" in "solver").
 inline const std::vector<std::string>& method_names() {
-  static const std::vector<std::string> names{"auto", "pd", "newton-krylov", "lbfgs",
-                                              "newton-direct"};
+  static const std::vector<std::string> names{"auto",          "pd",
+                                              "newton-krylov", "lbfgs",
+                                              "newton-direct", "newton-lagged"};
   return names;
 }
 
@@ -1683,7 +1684,7 @@ inline SceneSpec parse(const Parser& p, const json& root, std::optional<double> 
       if (std::find(names.begin(), names.end(), m) == names.end())
         p.fail("solver.method", "unknown method \"" + m +
                                     "\" (expected \"auto\", \"pd\", \"newton-krylov\", "
-                                    "\"lbfgs\" or \"newton-direct\")");
+                                    "\"lbfgs\", \"newton-direct\" or \"newton-lagged\")");
       sv.method = m;
     }
     const long m = p.integer(j, path, "anderson_window", -1L);

@@ -350,8 +350,8 @@ inline TaskSpec load_task(const std::string& path) {
     if (j.contains("method")) {
       const std::string m = p.string(j.at("method"), "solver.method");
       if (!parse_solver_method(m, t.method))
-        p.fail("solver.method", "expected \"auto\", \"pd\", \"newton-krylov\", \"lbfgs\" or "
-                                "\"newton-direct\", found \"" + m + "\"");
+        p.fail("solver.method", "expected \"auto\", \"pd\", \"newton-krylov\", \"lbfgs\", "
+                                "\"newton-direct\" or \"newton-lagged\", found \"" + m + "\"");
     }
     t.max_solver_iterations = static_cast<int>(p.integer(j, "solver", "max_iterations", 5000));
     p.at_least(t.max_solver_iterations, 1, "solver.max_iterations");

@@ -34,7 +34,7 @@ namespace diffphd {
 namespace detail {
 
 inline constexpr char kCheckpointMagic[8] = {'D', 'P', 'H', 'D', 'S', 'T', 'A', 'T'};
-inline constexpr std::uint32_t kCheckpointVersion = 1;
+inline constexpr std::uint32_t kCheckpointVersion = 2;  // 2: hessian_iterate
 inline constexpr std::uint32_t kByteOrderMark = 0x01020304;
 
 class CheckpointWriter {
@@ -122,6 +122,7 @@ void write_solver_state(CheckpointWriter& w, const SolverState<Dim>& s, std::uin
     w.doubles(m->data(), static_cast<std::size_t>(m->size()));
   w.doubles(s.activations.data(), static_cast<std::size_t>(s.activations.size()));
   w.vector(s.previous_iterate);
+  w.vector(s.hessian_iterate);
   w.put<std::uint64_t>(s.drivers.size());
   for (const DriverState<Dim>& d : s.drivers) {
     const Driver<Dim>& r = d.driver;
@@ -160,6 +161,7 @@ SolverState<Dim> read_solver_state(CheckpointReader& r, std::uint32_t kind) {
   s.activations.resize(ne);
   r.doubles(s.activations.data(), static_cast<std::uint64_t>(ne));
   s.previous_iterate = r.vector();
+  s.hessian_iterate = r.vector();
   const std::uint64_t nd = r.count(2 * sizeof(std::uint32_t) + 12 * sizeof(double) + 8);
   for (std::uint64_t i = 0; i < nd; ++i) {
     DriverState<Dim> d;

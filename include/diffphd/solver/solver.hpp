@@ -146,7 +146,7 @@ struct SolverOptions {
   /// increment gates: metres and the units of b, eq. (22)).
   double eps_abs = 1e-8;
   /// Iterations per step at most: local-global iterations (pd), Newton steps (newton-krylov,
-  /// newton-direct) or L-BFGS steps (lbfgs).
+  /// newton-direct, newton-lagged) or L-BFGS steps (lbfgs).
   int max_iterations = 200;
   SolverMethod method = SolverMethod::Auto;  ///< iteration of a step (docs/solver.md, "Methods")
   MethodOptions newton;                     ///< Newton-Krylov, direct Newton and L-BFGS options
@@ -186,7 +186,8 @@ inline const char* to_string(StepStatus s) {
 struct StepReport {
   int iterations = 0;  ///< outer iterations: local-global iterations, Newton or L-BFGS steps
   /// Applications of A^-1 beyond one per outer iteration's own: CG iterations (newton-krylov),
-  /// two-loop preconditioner applications (lbfgs), Cholesky solves (newton-direct); 0 for pd.
+  /// two-loop preconditioner applications (lbfgs), Cholesky solves (newton-direct), PCG
+  /// iterations with the lagged factor (newton-lagged); 0 for pd.
   int inner_iterations = 0;
   SolverMethod method = SolverMethod::PD;  ///< the method the step ran (Auto resolved)
   /// Last ||grad Phi|| / (eps_rel f0 + eps_abs f_w) of the gradient test (<= 1: converged).
@@ -326,6 +327,7 @@ class Solver {
     if (!q.allFinite() || !v.allFinite()) throw InputError("set_state: non-finite state");
     positions_ = q;
     velocities_ = v;
+    lagged_.invalidate();  // a new start: newton-lagged forms its factor afresh
   }
   void set_time(double t) { t_ = t; }
 
@@ -340,6 +342,8 @@ class Solver {
     s.external_forces = f_ext_;
     s.activations = activation_;
     s.previous_iterate = last_iterate_prev_;
+    if (lagged_.valid) s.hessian_iterate = lagged_.iterate;
+    else s.hessian_iterate = lagged_.pending;
     s.drivers = bc_.drivers();
     return s;
   }
@@ -348,13 +352,14 @@ class Solver {
   void set_state(const SolverState<Dim>& s) {
     const Index n = nv_ * Dim;
     if (s.external_forces.rows() != nv_ || s.activations.size() != ne_ ||
-        (s.previous_iterate.size() != 0 && s.previous_iterate.size() != n))
+        (s.previous_iterate.size() != 0 && s.previous_iterate.size() != n) ||
+        (s.hessian_iterate.size() != 0 && s.hessian_iterate.size() != n))
       throw InputError("set_state: the state is for another mesh (" +
                        std::to_string(s.external_forces.rows()) + " vertices, " +
                        std::to_string(s.activations.size()) + " elements; the solver has " +
                        std::to_string(nv_) + " and " + std::to_string(ne_) + ")");
     if (!std::isfinite(s.time) || !s.external_forces.allFinite() || !s.activations.allFinite() ||
-        !s.previous_iterate.allFinite())
+        !s.previous_iterate.allFinite() || !s.hessian_iterate.allFinite())
       throw InputError("set_state: non-finite time, forces, activations or iterate");
     set_state(s.positions, s.velocities);
     bc_.set_drivers(s.drivers);
@@ -363,6 +368,7 @@ class Solver {
     activation_ = s.activations;
     for (Index e = 0; e < ne_; ++e) params_[e].activation = activation_[e];
     last_iterate_prev_ = s.previous_iterate;
+    lagged_.pending = s.hessian_iterate;  // newton-lagged forms its factor there first
   }
 
   /// Muscle (fibre terms only): per-element stiffness k_e (#E) and fibre directions (#E by 3,
@@ -387,6 +393,7 @@ class Solver {
   void set_activation(const VectorX& activation) {
     if (activation.size() != ne_ || !activation.allFinite())
       throw InputError("set_activation: expected #E finite activations");
+    if (activation != activation_) lagged_.invalidate();  // the Hessian's blocks change
     activation_ = activation;
     for (Index e = 0; e < ne_; ++e) params_[e].activation = activation_[e];
   }
@@ -562,14 +569,17 @@ class Solver {
   }
 
   /// The method a step runs under the current options. SolverMethod::Auto resolves to
-  /// newton-krylov for a step without contact and to pd (the only method that carries the
+  /// newton-lagged for a step without contact and to pd (the only method that carries the
   /// contact NCP) when the contact model is enabled (docs/solver.md, "Method selection").
   SolverMethod resolve_method() const {
     if (options_.method != SolverMethod::Auto) return options_.method;
     if constexpr (kHasContact)
       if (contact_.enabled()) return SolverMethod::PD;
-    return SolverMethod::NewtonKrylov;
+    return SolverMethod::NewtonLagged;
   }
+
+  /// newton-lagged's held Hessian factor and its counters (refreshes, solves).
+  const LaggedHessian& lagged_hessian() const { return lagged_; }
 
  private:
   static Vector flat(const VertexMatrix<Dim>& x) {
@@ -833,6 +843,10 @@ class Solver {
       case SolverMethod::LBFGS:
         r = lbfgs(potential, q, test, options_.newton, options_.max_iterations);
         break;
+      case SolverMethod::NewtonLagged:
+        r = newton_lagged(potential, q, test, deflation_regions(), options_.newton,
+                          options_.max_iterations, lagged_);
+        break;
       default:
         r = newton_direct(potential, q, test, options_.newton, options_.max_iterations);
         break;
@@ -878,6 +892,7 @@ class Solver {
     mass_ = mesh_.lumped_mass(materials_.densities());
     weight_norm_ = 9.81 * mass_.norm();
     regions_valid_ = false;
+    lagged_.invalidate();  // A and the Hessian's blocks change
     const VectorX mu = materials_.mu(), lambda = materials_.lambda();
     const VectorX& V = mesh_.rest_volumes();
     const double vol = V.sum();
@@ -1048,6 +1063,7 @@ class Solver {
   std::vector<char> fully_fixed_;
   std::vector<std::vector<Index>> regions_;
   bool regions_valid_ = false;
+  LaggedHessian lagged_;  ///< newton-lagged's factor (kept across steps; in state())
   double weight_norm_ = 0;  ///< 9.81 m/s^2 ||m||: the gradient test's absolute force scale
   /// Round-off of grad Phi: 8 eps_mach ||(w_e V_e ||G_e||_F sqrt(Dim))_e||, the size of the
   /// element forces that cancel in A q - b(q) (at 1e6x contrast it exceeds 1e-12 f0).

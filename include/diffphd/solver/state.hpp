@@ -9,8 +9,10 @@
 /// materials, the options, the fixed vertices, the muscle stiffness and fibres, the contact
 /// model's colliders and options. Nothing else persists between steps: the Anderson history
 /// and the dual gate start afresh each step, the NCP multipliers are warm-started within a
-/// step only, Newton-Krylov and L-BFGS keep no history across steps, and the factor of A is
-/// a function of the materials, the options and the Dirichlet mask at the coming step.
+/// step only, Newton-Krylov and L-BFGS keep no history across steps, the factor of A is
+/// a function of the materials, the options and the Dirichlet mask at the coming step, and
+/// newton-lagged's Hessian factor is a function of `hessian_iterate` (it is dropped whenever
+/// the materials, options, muscles or activations change, or set_state(q, v) starts anew).
 #include <vector>
 
 #include "../core/types.hpp"
@@ -28,6 +30,9 @@ struct SolverState {
   VectorX activations;                 ///< #E muscle activations (ones without fibre terms)
   /// Solver::last_previous_iterate() (empty before the first step); read by the backward pass.
   VectorX previous_iterate;
+  /// Where newton-lagged's held Hessian factor was formed (empty when none is held): a restored
+  /// solver forms its factor there before its next step, as the uninterrupted one held it.
+  VectorX hessian_iterate;
   /// Every driver added so far with its reference positions (drivers start at times keyed to
   /// the clock and take their reference from the positions reached then).
   std::vector<DriverState<Dim>> drivers;
