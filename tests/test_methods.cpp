@@ -357,6 +357,27 @@ TEST_CASE("Newton-Krylov, newton-lagged, L-BFGS and PD agree with direct Newton"
   CHECK((lag2 - ref2).cwiseAbs().maxCoeff() <= 1e-6 * scale2);
 }
 
+TEST_CASE("Method options set in code are checked like the others (named InputError)",
+          "[methods]") {
+  const SimplicialMesh<3> mesh = small_mesh<3>();
+  const MaterialField mats(mesh.num_elements(), Material{1e5, 0.3, 1000, 0});
+  auto expect = [&](auto&& set, const std::string& what) {
+    SolverOptions o;
+    set(o.newton);
+    INFO(what);
+    CHECK_THROWS_WITH((Solver<3, CoroVol>(mesh, mats, o)),
+                      Catch::Contains("SolverOptions: " + what));
+  };
+  expect([](MethodOptions& m) { m.max_cg_iterations = 0; }, "newton.max_cg_iterations");
+  expect([](MethodOptions& m) { m.forcing_max = 1.5; }, "newton.forcing_max");
+  expect([](MethodOptions& m) { m.stiff_ratio = std::nan(""); }, "newton.stiff_ratio");
+  expect([](MethodOptions& m) { m.lbfgs_history = 0; }, "newton.lbfgs_history");
+  expect([](MethodOptions& m) { m.max_line_search = 0; }, "newton.max_line_search");
+  expect([](MethodOptions& m) { m.lagged_refresh_cg = 0; }, "newton.lagged_refresh_cg");
+  expect([](MethodOptions& m) { m.lagged_forcing_max = 0; }, "newton.lagged_forcing_max");
+  CHECK_NOTHROW(Solver<3, CoroVol>(mesh, mats, SolverOptions{}));
+}
+
 TEST_CASE("newton-lagged reuses one Hessian factor across steps, and a restored state continues "
           "bitwise equal",
           "[methods]") {

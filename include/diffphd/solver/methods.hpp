@@ -9,7 +9,6 @@
 /// step's first iterate (GradientTest). docs/solver.md, "Methods".
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <deque>
 #include <limits>
@@ -624,6 +623,20 @@ Index free_numbering(const Potential& P, Index n, std::vector<Index>& free_index
     if (ones[i] != 0) free_index[i] = nf++;
   return nf;
 }
+
+/// z = F^-1 r on the free DoFs (zero on the fixed ones): r gathered by `free_index` into the
+/// factor's numbering, solved, scattered back.
+inline void solve_on_free(const SparseFactor& F, const std::vector<Index>& free_index,
+                          Index n_free, const VectorX& r, VectorX& z) {
+  const Index n = r.size();
+  MatrixX rf(n_free, 1);
+  for (Index i = 0; i < n; ++i)
+    if (free_index[i] >= 0) rf(free_index[i], 0) = r[i];
+  const MatrixX zf = F.solve(rf);
+  z.setZero(n);
+  for (Index i = 0; i < n; ++i)
+    if (free_index[i] >= 0) z[i] = zf(free_index[i], 0);
+}
 }  // namespace detail
 
 /// \brief The projected Hessian of Phi as a sparse matrix on the free DoFs (flat indices
@@ -801,13 +814,8 @@ MethodResult newton_direct(Potential& P, VectorX& q, GradientTest& test, const M
     if (!analysed) factor.analyze_pattern(H), analysed = true;
     factor.factorize(H);
     if (factor.info() != FactorStatus::Success) return false;
-    VectorX gf(nf);
-    for (Index i = 0; i < n; ++i)
-      if (free_index[i] >= 0) gf[free_index[i]] = g[i];
-    const MatrixX xf = factor.solve(MatrixX(-gf));
+    detail::solve_on_free(factor, free_index, nf, VectorX(-g), d);
     ++res.inner_iterations;
-    for (Index i = 0; i < n; ++i)
-      if (free_index[i] >= 0) d[i] = xf(free_index[i], 0);
     return false;  // exact already: no tighter solve
   };
   return detail::newton_loop(P, q, test, o, max_iterations, direction);
@@ -847,15 +855,8 @@ struct LaggedOperator {
   void mask(VectorX& x) const { P.mask(x); }
   void hessian_vector(const VectorX& x, VectorX& out) { P.hessian_vector(x, out); }
   void precondition(const VectorX& r, VectorX& z) const {
-    const Index n = r.size();
-    MatrixX rf(L.n_free, 1);
-    for (Index i = 0; i < n; ++i)
-      if (L.free_index[i] >= 0) rf(L.free_index[i], 0) = r[i];
-    const MatrixX zf = L.factor.solve(rf);
+    solve_on_free(L.factor, L.free_index, L.n_free, r, z);
     ++L.solves;
-    z.setZero(n);
-    for (Index i = 0; i < n; ++i)
-      if (L.free_index[i] >= 0) z[i] = zf(L.free_index[i], 0);
   }
 };
 }  // namespace detail
@@ -909,7 +910,6 @@ MethodResult newton_lagged(Potential& P, VectorX& q, GradientTest& test,
     if (L.n_free == 0) return false;
     if (!L.valid && L.pending.size() == n) {  // a restored linearisation point
       const VectorX at = L.pending;
-      L.pending.resize(0);
       P.update_hessian(at);
       const bool ok = form(at);
       P.update_hessian(x);  // the blocks of this iterate again

@@ -594,6 +594,16 @@ class Solver {
     if (!(o.eps_rel >= 0 && o.eps_abs >= 0)) bad("eps_rel and eps_abs must be >= 0");
     if (o.max_iterations < 1) bad("max_iterations must be >= 1");
     if (!o.gravity.allFinite()) bad("gravity must be finite");
+    const MethodOptions& m = o.newton;
+    if (m.max_cg_iterations < 1) bad("newton.max_cg_iterations must be >= 1");
+    if (!(m.forcing_max > 0 && m.forcing_max < 1)) bad("newton.forcing_max must be in (0, 1)");
+    if (!(std::isfinite(m.stiff_ratio) && m.stiff_ratio >= 1))
+      bad("newton.stiff_ratio must be finite and >= 1");
+    if (m.lbfgs_history < 1) bad("newton.lbfgs_history must be >= 1");
+    if (m.max_line_search < 1) bad("newton.max_line_search must be >= 1");
+    if (m.lagged_refresh_cg < 1) bad("newton.lagged_refresh_cg must be >= 1");
+    if (!(m.lagged_forcing_max > 0 && m.lagged_forcing_max < 1))
+      bad("newton.lagged_forcing_max must be in (0, 1)");
   }
 
   StepReport& fail(StepReport& rep, std::chrono::steady_clock::time_point t0,
