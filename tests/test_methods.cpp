@@ -205,6 +205,34 @@ TEST_CASE("PdPotential: the gradient is the PD residual A q - b(q)", "[methods]"
   CHECK((r - g).norm() <= 1e-12 * r.norm());
 }
 
+/// value_and_gradient (one SVD per element, what the line search calls) against value() and
+/// gradient(): bitwise equal, damping on, for every kind of pack.
+template <int Dim, class E>
+void check_value_and_gradient(double contrast) {
+  auto s = deformed_solver<Dim, E>(contrast, 7);
+  auto P = s.step_potential();
+  VectorX q = Eigen::Map<const VectorX>(s.positions().data(), s.positions().size());
+  q += 0.01 * VectorX::Random(q.size());
+  P.mask(q);  // any change on the fixed DoFs is dropped; the free ones move
+  VectorX g1, b1, g2, b2;
+  double phi = 0;
+  REQUIRE(P.value_and_gradient(q, phi, g2, b2));
+  REQUIRE(P.gradient(q, g1, b1));
+  CHECK(phi == P.value(q));
+  CHECK(g1 == g2);
+  CHECK(b1 == b2);
+  CHECK(std::isfinite(phi));
+}
+
+TEST_CASE("PdPotential: value_and_gradient equals value and gradient bitwise", "[methods]") {
+  SECTION("3D corotated+volume") { check_value_and_gradient<3, CoroVol>(100); }
+  SECTION("3D neo-hookean prox") { check_value_and_gradient<3, NH>(1e4); }
+  SECTION("3D neo-hookean+logvolume") { check_value_and_gradient<3, NHLog>(100); }
+  SECTION("3D corotated+volume+muscle") { check_value_and_gradient<3, CoroVolMuscle>(10); }
+  SECTION("2D corotated+volume") { check_value_and_gradient<2, CoroVol>(100); }
+  SECTION("2D neo-hookean prox") { check_value_and_gradient<2, NH>(1e4); }
+}
+
 TEST_CASE("PdPotential: indefinite element blocks are projected to PSD", "[methods]") {
   // A compressed state: corotated blocks turn indefinite (singular values sum below 2).
   auto s = deformed_solver<3, CoroVol>(1, 5, 0.0);
@@ -249,6 +277,69 @@ TEST_CASE("PdPotential: indefinite element blocks are projected to PSD", "[metho
   CHECK(compare(s, 1.3) >= 0);
   auto nh = deformed_solver<3, NH>(100, 5, 0.0);
   CHECK(compare(nh, 0.6) >= 0);
+}
+
+/// The SVD-frame element correction (hessian_correction_in_frame, the fast path of
+/// update_hessian) against the Dim^2 x Dim^2 route (weighted_differential, LDLT test,
+/// project_psd) on random F: compressed, near-identity (clustered singular values), stretched,
+/// inverted and exactly repeated singular values.
+template <int Dim, class E>
+void check_frame_correction(double contrast) {
+  auto s = deformed_solver<Dim, E>(contrast, 11);
+  using Pot = decltype(s.step_potential());
+  using B = typename Pot::Block;
+  static_assert(Pot::EnergyPack::template has_frame_differential<Dim>, "");
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  int projected = 0, cases = 0;
+  const auto& mesh = s.mesh();
+  for (double scale : {0.5, 0.8, 1.0, 1.3, -0.9})
+    for (double amp : {0.0, 1e-9, 0.05, 0.4})
+      for (Index e = 0; e < std::min<Index>(mesh.num_elements(), 30); ++e) {
+        Mat<Dim> F = scale * Mat<Dim>::Identity();
+        if (scale < 0) F(0, 0) = -F(0, 0) * (1 + 0.1 * e / 30.0);  // inverted (det F < 0)
+        for (int i = 0; i < Dim; ++i)
+          for (int j = 0; j < Dim; ++j) F(i, j) += amp * u(rng);
+        if (e % 3 == 0) {  // a rotated copy: the same singular values, another frame
+          Eigen::Matrix<double, Dim, Dim> R =
+              Eigen::Matrix<double, Dim, Dim>::Random().householderQr().householderQ();
+          if (R.determinant() < 0) R.col(0) *= -1;
+          F = R * F;
+        }
+        const auto& p = s.element_params()[e];
+        const auto& m = s.element_means()[e];
+        bool pf = false, pr = false;
+        const B fast = Pot::hessian_correction_in_frame(F, p, m, &pf);
+        const B ref = Pot::hessian_correction_reference(F, p, m, &pr);
+        const double c = Pot::EnergyPack::element_weight(p);
+        B He = Pot::a_part(p) - Pot::EnergyPack::template weighted_differential<double, Dim>(F, p, m);
+        He = 0.5 * (He + He.transpose()).eval();
+        // Round-off of the reference grows with ||H_e||: an inverted element with
+        // sigma_i = -sigma_j has a rotation coefficient floored at 1/sqrt(eps) (about 1e8 c).
+        INFO("element " << e << " scale " << scale << " amp " << amp << "\nF =\n" << F);
+        REQUIRE((fast - ref).norm() <= 1e-9 * std::max(1.0, c) + 1e-14 * He.norm());
+        REQUIRE((fast - fast.transpose()).norm() <= 1e-12 * std::max(1.0, c));
+        // The projected flag: both routes agree wherever H_e is clearly (in)definite; blocks
+        // with an eigenvalue at round-off (the rotation modes of a near-rest corotated element)
+        // may be counted either way, with the same correction to 1e-14.
+        const double lmin = Eigen::SelfAdjointEigenSolver<B>(He).eigenvalues().minCoeff();
+        if (std::abs(lmin) > 1e-8 * std::max(1.0, c)) {
+          CHECK(pf == (lmin < 0));
+          CHECK(pr == (lmin < 0));
+        }
+        projected += pf;
+        ++cases;
+      }
+  CHECK(projected > 0);          // the indefinite branch ran
+  CHECK(projected < cases);      // and the definite one
+}
+
+TEST_CASE("The SVD-frame Hessian correction equals the Dim^2 x Dim^2 route", "[methods]") {
+  SECTION("3D corotated+volume") { check_frame_correction<3, CoroVol>(100); }
+  SECTION("3D neo-hookean prox") { check_frame_correction<3, NH>(1e4); }
+  SECTION("3D neo-hookean+logvolume") { check_frame_correction<3, NHLog>(100); }
+  SECTION("2D corotated+volume") { check_frame_correction<2, CoroVol>(100); }
+  SECTION("2D neo-hookean prox") { check_frame_correction<2, NH>(1e4); }
 }
 
 /// HessianAssembler (fixed pattern, slot map) against assemble_projected_hessian (triplets).

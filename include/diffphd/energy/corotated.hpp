@@ -40,8 +40,22 @@ struct Corotated : detail::SvdTerm<Corotated> {
       const Eigen::Matrix<S, Dim, Dim>& /*F*/, const Eigen::Matrix<S, Dim, Dim>& U,
       const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
       const ElementParams& /*p*/, const ProxMeans& /*means*/) {
-    return detail::spectral_differential<S, Dim>(U, sigma, V, Eigen::Matrix<S, Dim, 1>::Ones(),
-                                                 Eigen::Matrix<S, Dim, Dim>::Zero());
+    Eigen::Matrix<S, Dim, 1> s;
+    Eigen::Matrix<S, Dim, Dim> J;
+    stretch_map<S, Dim>(sigma, ElementParams{}, ProxMeans{}, s, J);
+    return detail::spectral_differential<S, Dim>(U, sigma, V, s, J);
+  }
+
+  /// The stretch map of p = U diag(s(sigma)) V^T: s = 1, J = ds/dsigma = 0 (the SVD-frame form
+  /// of the differential that Energies::frame_differential sums).
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static void stretch_map(const Eigen::Matrix<S, Dim, 1>& /*sigma*/,
+                                              const ElementParams& /*p*/,
+                                              const ProxMeans& /*means*/,
+                                              Eigen::Matrix<S, Dim, 1>& s,
+                                              Eigen::Matrix<S, Dim, Dim>& J) {
+    s.setOnes();
+    J.setZero();
   }
 };
 

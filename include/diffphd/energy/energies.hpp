@@ -76,6 +76,32 @@ struct has_differential_svd<
         std::declval<const ElementParams&>(), std::declval<const ProxMeans&>()))>>
     : std::true_type {};
 
+/// Terms that give their stretch map s(sigma) and J = ds/dsigma (stretch_map): their
+/// differential is detail::spectral_differential(U, sigma, V, s, J).
+template <class T, int Dim, class = void>
+struct has_stretch_map : std::false_type {};
+template <class T, int Dim>
+struct has_stretch_map<
+    T, Dim,
+    std::void_t<decltype(T::template stretch_map<double, Dim>(
+        std::declval<const Eigen::Matrix<double, Dim, 1>&>(), std::declval<const ElementParams&>(),
+        std::declval<const ProxMeans&>(), std::declval<Eigen::Matrix<double, Dim, 1>&>(),
+        std::declval<Eigen::Matrix<double, Dim, Dim>&>()))>> : std::true_type {};
+
+/// Terms whose potential_energy() can take the shared SVD (every StretchProxTerm).
+template <class T, int Dim, class = void>
+struct has_potential_energy_svd : std::false_type {};
+template <class T, int Dim>
+struct has_potential_energy_svd<
+    T, Dim,
+    std::void_t<decltype(T::template potential_energy_svd<double, Dim>(
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const Eigen::Matrix<double, Dim, 1>&>(),
+        std::declval<const Eigen::Matrix<double, Dim, Dim>&>(),
+        std::declval<const ElementParams&>(), std::declval<const ProxMeans&>()))>>
+    : std::true_type {};
+
 /// T's projection, through project_svd with the shared SVD when T offers it.
 template <class T, class S, int Dim>
 DIFFPHD_HOST_DEVICE inline Eigen::Matrix<S, Dim, Dim> project_with_svd(
@@ -118,6 +144,26 @@ struct has_potential_energy<
     std::void_t<decltype(T::template potential_energy<double, Dim>(
         std::declval<const Eigen::Matrix<double, Dim, Dim>&>(), std::declval<const ElementParams&>(),
         std::declval<const ProxMeans&>()))>> : std::true_type {};
+
+/// T's term of potential_energy() with the shared SVD: potential_energy_svd where T offers it,
+/// else potential_energy(F), else the surrogate w / 2 ||F - p||^2 from `projected` (T's
+/// projection of F, when the caller has it) or project_svd, else T's surrogate_energy(F).
+template <class T, class S, int Dim>
+S energy_with_svd(const Eigen::Matrix<S, Dim, Dim>& F, const Eigen::Matrix<S, Dim, Dim>& U,
+                  const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
+                  const ElementParams& p, const ProxMeans& means,
+                  const Eigen::Matrix<S, Dim, Dim>* projected) {
+  if constexpr (has_potential_energy_svd<T, Dim>::value)
+    return T::template potential_energy_svd<S, Dim>(F, U, sigma, V, p, means);
+  else if constexpr (has_potential_energy<T, Dim>::value)
+    return T::template potential_energy<S, Dim>(F, p, means);
+  else if constexpr (has_project_svd<T, Dim>::value)
+    return S(0.5 * T::element_weight(p)) *
+           (F - (projected ? *projected : T::template project_svd<S, Dim>(F, U, sigma, V, p, means)))
+               .squaredNorm();
+  else
+    return T::template surrogate_energy<S, Dim>(F, p, means);
+}
 
 /// Terms whose differential can take the trust-region filter (every StretchProxTerm).
 template <class T, int Dim, class = void>
@@ -309,6 +355,41 @@ struct Energies {
     return out;
   }
 
+  /// True when every term gives its stretch map (Corotated, Volume, every StretchProxTerm; not
+  /// Muscle): weighted_differential() then has the SVD-frame form of frame_differential().
+  template <int Dim>
+  static constexpr bool has_frame_differential =
+      !has_fibre_terms && (detail::has_stretch_map<Terms, Dim>::value && ...);
+
+  /// sum_k w_k dp_k/dF in the SVD frame of F = U diag(sigma) V^T (has_frame_differential):
+  /// with K = U^T dF V, U^T (sum_k w_k dp_k) V has diagonal Jw diag(K) and, for i != j, entries
+  /// csym(i, j) (K_ij + K_ji)/2 + cskw(i, j) (K_ij - K_ji)/2 (detail::spectral_differential,
+  /// summed with the weights). On the pair (vec(u_i v_j^T), vec(u_j v_i^T)) the differential
+  /// therefore has the eigenvalue csym(i, j) on the symmetric mode and cskw(i, j) on the skew
+  /// one. Equal to K^T weighted_differential() K (V (x) U) up to round-off.
+  template <class S, int Dim>
+  static void frame_differential(const Eigen::Matrix<S, Dim, 1>& sigma, const ElementParams& p,
+                                 const ProxMeans& means, Eigen::Matrix<S, Dim, Dim>& Jw,
+                                 Eigen::Matrix<S, Dim, Dim>& csym,
+                                 Eigen::Matrix<S, Dim, Dim>& cskw) {
+    static_assert(has_frame_differential<Dim>, "a term has no stretch_map (or acts on fibres)");
+    Jw.setZero();
+    csym.setZero();
+    cskw.setZero();
+    (
+        [&] {
+          Eigen::Matrix<S, Dim, 1> s;
+          Eigen::Matrix<S, Dim, Dim> J, cs, ck;
+          Terms::template stretch_map<S, Dim>(sigma, p, means, s, J);
+          detail::spectral_coefficients<S, Dim>(sigma, s, J, cs, ck);
+          const S w = S(Terms::element_weight(p));
+          Jw += w * J;
+          csym += w * cs;
+          cskw += w * ck;
+        }(),
+        ...);
+  }
+
   /// weighted_differential() with every stretch-prox term's prox Hessian H = H_psi + k I
   /// replaced by the trust-region blend (1 - tau) H + tau |H| (eqs. 24-25); the other terms'
   /// differentials are unchanged. tau = 0 is weighted_differential().
@@ -430,15 +511,52 @@ struct Energies {
   static S potential_energy(const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p,
                             const ProxMeans& means) {
     S out(0);
-    (
-        [&] {
-          if constexpr (detail::has_potential_energy<Terms, Dim>::value)
-            out += Terms::template potential_energy<S, Dim>(F, p, means);
-          else
-            out += Terms::template surrogate_energy<S, Dim>(F, p, means);
-        }(),
-        ...);
+    if constexpr (shares_svd_in_projection<Dim>) {
+      // One svd_rv(F) for every term that can take it (the same values as their own SVDs).
+      Eigen::Matrix<S, Dim, Dim> U, V;
+      Eigen::Matrix<S, Dim, 1> sigma;
+      svd_rv<S, Dim>(F, U, sigma, V);
+      ((out += detail::energy_with_svd<Terms, S, Dim>(F, U, sigma, V, p, means, nullptr)), ...);
+    } else {
+      (
+          [&] {
+            if constexpr (detail::has_potential_energy<Terms, Dim>::value)
+              out += Terms::template potential_energy<S, Dim>(F, p, means);
+            else
+              out += Terms::template surrogate_energy<S, Dim>(F, p, means);
+          }(),
+          ...);
+    }
     return out;
+  }
+
+  /// weighted_projection() with potential_energy() of the same F in `energy`, from one shared
+  /// SVD (the line search's value and gradient in one pass). Both equal the separate calls
+  /// bitwise.
+  template <class S, int Dim>
+  static Eigen::Matrix<S, Dim, Dim> weighted_projection_and_energy(
+      const Eigen::Matrix<S, Dim, Dim>& F, const ElementParams& p, const ProxMeans& means,
+      S& energy) {
+    if constexpr (shares_svd_in_projection<Dim>) {
+      Eigen::Matrix<S, Dim, Dim> out = Eigen::Matrix<S, Dim, Dim>::Zero();
+      Eigen::Matrix<S, Dim, Dim> U, V;
+      Eigen::Matrix<S, Dim, 1> sigma;
+      svd_rv<S, Dim>(F, U, sigma, V);
+      S en(0);
+      (
+          [&] {
+            const Eigen::Matrix<S, Dim, Dim> pk =
+                detail::project_with_svd<Terms, S, Dim>(F, U, sigma, V, p, means, nullptr);
+            out += S(Terms::element_weight(p)) * pk;
+            en += detail::energy_with_svd<Terms, S, Dim>(F, U, sigma, V, p, means, &pk);
+          }(),
+          ...);
+      energy = en;
+      return out;
+    } else {
+      energy = potential_energy<S, Dim>(F, p, means);
+      return weighted_projection<S, Dim>(F, p, means);
+    }
   }
 
   /// Sum of the terms' surrogate energies (per unit rest volume).

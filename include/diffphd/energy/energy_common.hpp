@@ -99,6 +99,37 @@ DIFFPHD_HOST_DEVICE inline SMat<S, Dim> compose(const SMat<S, Dim>& U, const SVe
   return U * s.asDiagonal() * V.transpose();
 }
 
+/// \brief The rotation coefficients of detail::spectral_differential: for i != j,
+/// csym(i, j) = (s_i - s_j)/(sigma_i - sigma_j) (its limit (J_ii - J_ij + J_jj - J_ji)/2 where
+/// |sigma_i - sigma_j| is below sqrt(eps) scale) and cskw(i, j) = (s_i + s_j)/(sigma_i + sigma_j)
+/// (the denominator floored at sqrt(eps) scale); zero on the diagonal. Both are symmetric.
+template <class S, int Dim>
+DIFFPHD_HOST_DEVICE inline void spectral_coefficients(const SVec<S, Dim>& sigma,
+                                                      const SVec<S, Dim>& s,
+                                                      const SMat<S, Dim>& J, SMat<S, Dim>& csym,
+                                                      SMat<S, Dim>& cskw) {
+  using M = SmallMath<S>;
+  S scale = S(1);
+  for (int i = 0; i < Dim; ++i)
+    if (M::abs(sigma(i)) > scale) scale = M::abs(sigma(i));
+  const S delta = M::sqrt(eps_of<S>()) * scale;
+  for (int i = 0; i < Dim; ++i)
+    for (int j = 0; j < Dim; ++j) {
+      if (i == j) {
+        csym(i, j) = cskw(i, j) = S(0);
+        continue;
+      }
+      const S dm = sigma(i) - sigma(j);
+      if (M::abs(dm) > delta)
+        csym(i, j) = (s(i) - s(j)) / dm;
+      else
+        csym(i, j) = S(0.5) * (J(i, i) - J(i, j) + J(j, j) - J(j, i));
+      S dp = sigma(i) + sigma(j);
+      if (dp < delta) dp = delta;
+      cskw(i, j) = (s(i) + s(j)) / dp;
+    }
+}
+
 /// \brief Differential of the isotropic matrix map F = U diag(sigma) V^T -> p = U diag(s) V^T,
 /// where s = s(sigma) is permutation-equivariant with Jacobian J = ds/dsigma.
 ///
@@ -117,27 +148,8 @@ DIFFPHD_HOST_DEVICE inline SDiff<S, Dim> spectral_differential(const SMat<S, Dim
                                                                const SMat<S, Dim>& V,
                                                                const SVec<S, Dim>& s,
                                                                const SMat<S, Dim>& J) {
-  using M = SmallMath<S>;
-  S scale = S(1);
-  for (int i = 0; i < Dim; ++i)
-    if (M::abs(sigma(i)) > scale) scale = M::abs(sigma(i));
-  const S delta = M::sqrt(eps_of<S>()) * scale;
   SMat<S, Dim> csym, cskw;
-  for (int i = 0; i < Dim; ++i)
-    for (int j = 0; j < Dim; ++j) {
-      if (i == j) {
-        csym(i, j) = cskw(i, j) = S(0);
-        continue;
-      }
-      const S dm = sigma(i) - sigma(j);
-      if (M::abs(dm) > delta)
-        csym(i, j) = (s(i) - s(j)) / dm;
-      else
-        csym(i, j) = S(0.5) * (J(i, i) - J(i, j) + J(j, j) - J(j, i));
-      S dp = sigma(i) + sigma(j);
-      if (dp < delta) dp = delta;
-      cskw(i, j) = (s(i) + s(j)) / dp;
-    }
+  spectral_coefficients<S, Dim>(sigma, s, J, csym, cskw);
   SDiff<S, Dim> D;
   for (int l = 0; l < Dim; ++l)
     for (int k = 0; k < Dim; ++k) {

@@ -80,10 +80,7 @@ struct StretchProxTerm : detail::SvdTerm<StretchProxTerm<Policy, Routing>> {
     Eigen::Matrix<S, Dim, Dim> U, V;
     Eigen::Matrix<S, Dim, 1> sigma;
     svd_rv<S, Dim>(F, U, sigma, V);
-    const Eigen::Matrix<S, Dim, 1> s = stretches<S, Dim>(sigma, p, means);
-    const ProxParams q = prox_params(p, means);
-    const auto model = Policy::template model<S, Dim>(q, routed_means(p, means));
-    return S(element_weight(p) / q.k) * (model.value(s) + S(0.5 * q.k) * (sigma - s).squaredNorm());
+    return potential_energy_svd<S, Dim>(F, U, sigma, V, p, means);
   }
 
   /// H_prox(s) = H_psi(s) + k I (eq. 23), Dim x Dim.
@@ -161,6 +158,32 @@ struct StretchProxTerm : detail::SvdTerm<StretchProxTerm<Policy, Routing>> {
     const Eigen::Matrix<S, Dim, Dim> J =
         S(prox_params(p, means).k) * detail::small_inverse<S, Dim>(H);
     return detail::spectral_differential<S, Dim>(U, sigma, V, s, J);
+  }
+
+  /// The stretch map of p* = U diag(s*(sigma)) V^T: s* = stretches(sigma), J = ds*/dsigma_F =
+  /// k H_prox(s*)^-1 (the SVD-frame form of differential_svd() that Energies::frame_differential
+  /// sums).
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static void stretch_map(const Eigen::Matrix<S, Dim, 1>& sigma,
+                                              const ElementParams& p, const ProxMeans& means,
+                                              Eigen::Matrix<S, Dim, 1>& s,
+                                              Eigen::Matrix<S, Dim, Dim>& J) {
+    s = stretches<S, Dim>(sigma, p, means);
+    J = S(prox_params(p, means).k) * detail::small_inverse<S, Dim>(prox_hessian<S, Dim>(s, p, means));
+  }
+
+  /// potential_energy() from a precomputed svd_rv(F) = (U, sigma, V) (Energies shares one SVD
+  /// between terms). `F`, `U`, `V` are unused.
+  template <class S, int Dim>
+  static S potential_energy_svd(const Eigen::Matrix<S, Dim, Dim>& /*F*/,
+                                const Eigen::Matrix<S, Dim, Dim>& /*U*/,
+                                const Eigen::Matrix<S, Dim, 1>& sigma,
+                                const Eigen::Matrix<S, Dim, Dim>& /*V*/, const ElementParams& p,
+                                const ProxMeans& means) {
+    const Eigen::Matrix<S, Dim, 1> s = stretches<S, Dim>(sigma, p, means);
+    const ProxParams q = prox_params(p, means);
+    const auto model = Policy::template model<S, Dim>(q, routed_means(p, means));
+    return S(element_weight(p) / q.k) * (model.value(s) + S(0.5 * q.k) * (sigma - s).squaredNorm());
   }
 };
 

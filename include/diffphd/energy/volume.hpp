@@ -188,9 +188,22 @@ struct Volume : detail::SvdTerm<Volume> {
       const Eigen::Matrix<S, Dim, Dim>& /*F*/, const Eigen::Matrix<S, Dim, Dim>& U,
       const Eigen::Matrix<S, Dim, 1>& sigma, const Eigen::Matrix<S, Dim, Dim>& V,
       const ElementParams& /*p*/, const ProxMeans& /*means*/) {
-    const Eigen::Matrix<S, Dim, 1> s = stretches<S, Dim>(sigma);
-    return detail::spectral_differential<S, Dim>(U, sigma, V, s,
-                                                 stretch_jacobian<S, Dim>(sigma, s));
+    Eigen::Matrix<S, Dim, 1> s;
+    Eigen::Matrix<S, Dim, Dim> J;
+    stretch_map<S, Dim>(sigma, ElementParams{}, ProxMeans{}, s, J);
+    return detail::spectral_differential<S, Dim>(U, sigma, V, s, J);
+  }
+
+  /// The stretch map of p = U diag(s(sigma)) V^T: s = stretches(sigma), J = stretch_jacobian
+  /// (the SVD-frame form of the differential that Energies::frame_differential sums).
+  template <class S, int Dim>
+  DIFFPHD_HOST_DEVICE static void stretch_map(const Eigen::Matrix<S, Dim, 1>& sigma,
+                                              const ElementParams& /*p*/,
+                                              const ProxMeans& /*means*/,
+                                              Eigen::Matrix<S, Dim, 1>& s,
+                                              Eigen::Matrix<S, Dim, Dim>& J) {
+    s = stretches<S, Dim>(sigma);
+    J = stretch_jacobian<S, Dim>(sigma, s);
   }
 };
 

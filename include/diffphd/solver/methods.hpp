@@ -134,10 +134,12 @@ struct MethodOptions {
 
 /// \brief Vertex sets whose rigid modes are deflated: every connected component of the mesh
 /// (each free body) and every connected set of elements with mu_e >= ratio min mu (each stiff
-/// region) that is not a whole body. Connectivity through shared vertices.
+/// region) that is not a whole body. Connectivity through shared vertices. The stiff regions
+/// come first; `stiff_count` (when given) receives how many.
 template <int Dim>
 std::vector<std::vector<Index>> deflation_regions(const SimplicialMesh<Dim>& mesh,
-                                                  const VectorX& mu, double ratio) {
+                                                  const VectorX& mu, double ratio,
+                                                  size_t* stiff_count = nullptr) {
   const Index nv = mesh.num_vertices(), ne = mesh.num_elements();
   const auto& T = mesh.elements();
   std::vector<std::vector<Index>> out;
@@ -190,6 +192,7 @@ std::vector<std::vector<Index>> deflation_regions(const SimplicialMesh<Dim>& mes
       }
     }
   }
+  if (stiff_count) *stiff_count = out.size();
   for (auto& b : bodies) out.push_back(std::move(b));
   return out;
 }
@@ -362,12 +365,13 @@ bool line_search(Potential& P, VectorX& q, VectorX& g, VectorX& b, double& phi, 
   const double noise = 1e-12 * std::max(1.0, std::abs(phi));
   for (int t = 0; t < max_trials; ++t, alpha *= 0.5) {
     qn = q + alpha * d;
-    const double pn = P.value(qn);
-    if (!std::isfinite(pn)) continue;
+    // Phi and its gradient in one pass (one SVD per element): the first trial is accepted on
+    // almost every Newton step, and its gradient is the next iteration's.
+    double pn = 0;
+    if (!P.value_and_gradient(qn, pn, gn, bn, bad) || !std::isfinite(pn)) continue;
     const bool armijo = pn <= phi + 1e-4 * alpha * gd;
     const bool undecidable = alpha * std::abs(gd) <= noise;
     if (!armijo && !undecidable) continue;
-    if (!P.gradient(qn, gn, bn, bad)) continue;
     if (!armijo && !(gn.norm() < gnorm)) {
       if (undecidable) break;  // halving further only shrinks a step that does not help
       continue;
@@ -389,14 +393,13 @@ template <class Potential>
 bool start_method(Potential& P, const VectorX& q, GradientTest& test, MethodResult& res,
                   VectorX& g, VectorX& b, double& gn, double& phi) {
   Index bad = -1;
-  if (!P.gradient(q, g, b, &bad)) {
+  if (!P.value_and_gradient(q, phi, g, b, &bad)) {
     res.non_finite = true;
     res.message = "iteration 0: non-finite local projection at element " + std::to_string(bad);
     return false;
   }
   gn = g.norm();
   test.f0 = gn;
-  phi = P.value(q);
   return true;
 }
 
@@ -700,9 +703,6 @@ class HessianAssembler {
     const auto& mesh = P.solver().mesh();
     const auto& T = mesh.elements();
     const auto& As = P.solver().system().matrix();
-    std::vector<Eigen::Triplet<double, Index>> trips;
-    trips.reserve(static_cast<size_t>(As.nonZeros()) * Dim +
-                  static_cast<size_t>(mesh.num_elements()) * N * N);
     auto each_a = [&](auto&& f) {
       for (Index j = 0; j < As.outerSize(); ++j)
         for (SparseMatrix::InnerIterator it(As, j); it; ++it)
@@ -716,16 +716,40 @@ class HessianAssembler {
             for (int j = 0; j < Dim; ++j)
               f(free_index[Dim * T(e, a) + i], free_index[Dim * T(e, c) + j]);
     };
-    each_a([&](Index r, Index c) {
-      if (r >= 0 && c >= 0) trips.emplace_back(r, c, 1.0);
-    });
+    // The pattern: a full Dim x Dim block of free DoFs for every vertex pair that A or an
+    // element couples. The vertex pattern first (Dim^2 fewer entries to sort), then each free
+    // DoF column written directly: the free numbering is increasing in the flat index, so the
+    // columns come in order and their rows sorted.
+    const Index nv = As.rows();
+    std::vector<Eigen::Triplet<double, Index>> trips;
+    trips.reserve(static_cast<size_t>(As.nonZeros()) +
+                  static_cast<size_t>(mesh.num_elements()) * (Dim + 1) * (Dim + 1));
+    for (Index j = 0; j < As.outerSize(); ++j)
+      for (SparseMatrix::InnerIterator it(As, j); it; ++it) trips.emplace_back(it.row(), j, 1.0);
     for (Index e = 0; e < mesh.num_elements(); ++e)
-      each_e(e, [&](Index r, Index c) {
-        if (r >= 0 && c >= 0) trips.emplace_back(r, c, 1.0);
-      });
-    H_.resize(n_free, n_free);
-    H_.setFromTriplets(trips.begin(), trips.end());
-    H_.makeCompressed();
+      for (int a = 0; a <= Dim; ++a)
+        for (int c = 0; c <= Dim; ++c) trips.emplace_back(T(e, a), T(e, c), 1.0);
+    SparseMatrix Vp(nv, nv);
+    Vp.setFromTriplets(trips.begin(), trips.end());
+    Vp.makeCompressed();
+    std::vector<Index> outer(static_cast<size_t>(n_free) + 1, 0), inner;
+    inner.reserve(static_cast<size_t>(Vp.nonZeros()) * Dim * Dim);
+    Index col = 0;
+    for (Index vj = 0; vj < nv; ++vj)
+      for (int k = 0; k < Dim; ++k) {
+        if (free_index[Dim * vj + k] < 0) continue;
+        for (SparseMatrix::InnerIterator it(Vp, vj); it; ++it)
+          for (int l = 0; l < Dim; ++l) {
+            const Index r = free_index[Dim * it.row() + l];
+            if (r >= 0) inner.push_back(r);
+          }
+        outer[++col] = static_cast<Index>(inner.size());
+      }
+    H_ = SparseMatrix(n_free, n_free);
+    H_.resizeNonZeros(static_cast<Index>(inner.size()));
+    std::copy(outer.begin(), outer.end(), H_.outerIndexPtr());
+    std::copy(inner.begin(), inner.end(), H_.innerIndexPtr());
+    std::fill(H_.valuePtr(), H_.valuePtr() + inner.size(), 0.0);
     auto slot = [&](Index r, Index c) -> Index {
       if (r < 0 || c < 0) return -1;
       const Index* b = H_.innerIndexPtr() + H_.outerIndexPtr()[c];
@@ -862,7 +886,8 @@ struct LaggedOperator {
 }  // namespace detail
 
 /// \brief Newton on Phi with a lagged Hessian factor (docs/solver.md, "newton-lagged"): each
-/// Newton step solves H d = -g by deflated PCG (the coarse space of newton_krylov()) whose
+/// Newton step solves H d = -g by deflated PCG (the rigid modes of `regions`: the Solver passes
+/// the stiff regions only, Solver::stiff_regions()) whose
 /// preconditioner is the CHOLMOD factor of the projected Hessian at an earlier iterate, held in
 /// `L` across Newton steps and time steps. When the PCG does not reach the forcing term
 /// eta = min(lagged_forcing_max, sqrt(||g|| / f0)) within `lagged_refresh_cg` iterations (or

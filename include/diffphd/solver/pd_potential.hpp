@@ -84,32 +84,31 @@ class PdPotential {
   /// Phi(q) (up to a constant); +inf where a projection or the energy is not finite (a barrier
   /// term at an inverted element).
   double value(const Vector& q) const {
-    const auto& mesh = s_.mesh();
-    const auto& mass = s_.masses();
-    const auto& beta = s_.damping_coefficients();
-    const double h = s_.options().h, a = s_.options().alpha;
-    const Index nv = mesh.num_vertices(), ne = mesh.num_elements();
-    double inertia = 0;
-    for (Index v = 0; v < nv; ++v)
-      for (int k = 0; k < Dim; ++k) {
-        const double d = q[Dim * v + k] - c_[Dim * v + k];
-        inertia += mass[v] * d * d;
-      }
-    double phi = (1.0 + a * h) / (2 * h * h) * inertia;
+    const Index ne = s_.mesh().num_elements();
     const auto& params = s_.element_params();
     const auto& means = s_.element_means();
-    std::vector<double> per(ne);
+    std::vector<double> density(ne);
     SolverT::backend_type::for_each_element(ne, [&](Index e) {
-      const Mat<Dim> F = detail::element_gradient(mesh, e, q);
-      double v = EnergyPack::template potential_energy<double, Dim>(F, params[e], means[e]);
-      if (beta.size() == ne && beta[e] > 0) {
-        const Mat<Dim> Ft = detail::element_gradient(mesh, e, q_t_);
-        v += beta[e] / (2 * h) * (F - Ft).squaredNorm();
-      }
-      per[e] = mesh.rest_volume(e) * v;
+      const Mat<Dim> F = detail::element_gradient(s_.mesh(), e, q);
+      density[e] = EnergyPack::template potential_energy<double, Dim>(F, params[e], means[e]);
     });
-    for (double v : per) phi += v;
-    return std::isfinite(phi) ? phi : std::numeric_limits<double>::infinity();
+    return sum_value(q, density);
+  }
+
+  /// value() and gradient() at one q, one SVD per element for both (the line search's trial
+  /// point); bitwise the same numbers as the two calls. Returns false (phi = +inf, `bad_element`
+  /// named) when a local projection is not finite.
+  bool value_and_gradient(const Vector& q, double& phi, Vector& g, Vector& b,
+                          Index* bad_element = nullptr) {
+    std::vector<double> density;
+    if (!s_.local_rhs_and_energy(q, b, density, bad_element)) {
+      phi = std::numeric_limits<double>::infinity();
+      return false;
+    }
+    b += rhs0_;
+    residual(q, b, g);
+    phi = sum_value(q, density);
+    return true;
   }
 
   /// g = A q - b(q) on the free DoFs (zero on fixed ones); `b` receives b(q) (with rhs0).
@@ -145,24 +144,107 @@ class PdPotential {
     std::vector<unsigned char> projected(ne, 0);
     SolverT::backend_type::for_each_element(ne, [&](Index e) {
       const Mat<Dim> F = detail::element_gradient(mesh, e, q);
-      const Block D =
-          EnergyPack::template weighted_differential<double, Dim>(F, params[e], means[e]);
-      const Block Aop = a_part(params[e]);
-      Block He = Aop - D;
-      He = 0.5 * (He + He.transpose()).eval();
-      // Cheap PSD test first (most blocks pass); eigen-projection only where it fails.
-      Eigen::LDLT<Block> ldlt(He);
-      const double tol = 1e-12 * std::max(1.0, Aop.diagonal().maxCoeff());
-      bool psd = ldlt.info() == Eigen::Success && ldlt.vectorD().minCoeff() >= -tol;
-      if (!psd) {
-        He = project_psd(He, F);
-        projected[e] = 1;
-      }
-      corr_[e] = Aop - He;
+      bool p = false;
+      corr_[e] = hessian_correction(F, params[e], means[e], &p);
+      projected[e] = p ? 1 : 0;
     });
     int count = 0;
     for (auto p : projected) count += p;
     return count;
+  }
+
+  /// One element's correction C_e = A-part - P(H_e) (update_hessian()), `projected` set when
+  /// H_e was indefinite. Packs whose every term gives its stretch map take the SVD-frame route
+  /// (hessian_correction_in_frame); the others hessian_correction_reference().
+  static Block hessian_correction(const Mat<Dim>& F, const ElementParams& p,
+                                  const ProxMeans& means, bool* projected) {
+    if constexpr (EnergyPack::template has_frame_differential<Dim>)
+      return hessian_correction_in_frame(F, p, means, projected);
+    else
+      return hessian_correction_reference(F, p, means, projected);
+  }
+
+  /// C_e from the Dim^2 x Dim^2 differential: H_e = A-part - sum_k w_k dp_k/dF, symmetrised, an
+  /// LDLT test, and where it fails project_psd(). The oracle of hessian_correction_in_frame().
+  static Block hessian_correction_reference(const Mat<Dim>& F, const ElementParams& p,
+                                            const ProxMeans& means, bool* projected) {
+    const Block D = EnergyPack::template weighted_differential<double, Dim>(F, p, means);
+    const Block Aop = a_part(p);
+    Block He = Aop - D;
+    He = 0.5 * (He + He.transpose()).eval();
+    // Cheap PSD test first; eigen-projection only where it fails.
+    Eigen::LDLT<Block> ldlt(He);
+    const double tol = 1e-12 * std::max(1.0, Aop.diagonal().maxCoeff());
+    const bool psd = ldlt.info() == Eigen::Success && ldlt.vectorD().minCoeff() >= -tol;
+    if (projected) *projected = !psd;
+    if (!psd) He = project_psd(He, F);
+    return Aop - He;
+  }
+
+  /// C_e in the SVD frame of F = U diag(sigma) V^T (isotropic packs, EnergyPack::
+  /// frame_differential): with K = V (x) U, K^T H_e K = c I - K^T D K is block diagonal, one
+  /// Dim x Dim block c I - sym(Jw) on the vec(u_i v_i^T) and, per pair i < j, the eigenvalues
+  /// c - csym(i, j) (symmetric mode (k_ij + k_ji)/sqrt 2) and c - cskw(i, j) (skew mode), c the
+  /// isotropic weight (the A-part is c I). Where some eigenvalue is below -1e-12 max(1, c) every
+  /// negative one is set to 0 (the projection of hessian_correction_reference); then
+  /// C_e = K (c I - K^T P(H_e) K) K^T. No Dim^2 x Dim^2 factorization or eigen-decomposition.
+  static Block hessian_correction_in_frame(const Mat<Dim>& F, const ElementParams& p,
+                                           const ProxMeans& means, bool* projected) {
+    Mat<Dim> U, V, Jw, cs, ck;
+    Vec<Dim> sigma;
+    svd_rv<double, Dim>(F, U, sigma, V);
+    EnergyPack::template frame_differential<double, Dim>(sigma, p, means, Jw, cs, ck);
+    const double c = EnergyPack::element_weight(p);
+    const double tol = 1e-12 * std::max(1.0, c);
+    // The diagonal block of H and its eigenvalues.
+    Mat<Dim> Hd = c * Mat<Dim>::Identity() - 0.5 * (Jw + Jw.transpose());
+    Eigen::SelfAdjointEigenSolver<Mat<Dim>> es;
+    es.computeDirect(Hd, Eigen::EigenvaluesOnly);
+    constexpr int kPairs = Dim * (Dim - 1) / 2;
+    double mu_s[kPairs], mu_k[kPairs];  // eigenvalues of H on the pair modes
+    bool indefinite = es.eigenvalues().minCoeff() < -tol;
+    for (int i = 0, r = 0; i < Dim; ++i)
+      for (int j = i + 1; j < Dim; ++j, ++r) {
+        mu_s[r] = c - cs(i, j);
+        mu_k[r] = c - ck(i, j);
+        indefinite = indefinite || mu_s[r] < -tol || mu_k[r] < -tol;
+      }
+    if (projected) *projected = indefinite;
+    Mat<Dim> Cd;  // c I - P(Hd): the correction's diagonal block in the frame
+    if (indefinite) {
+      // computeDirect is accurate to about 1e-12 relative on clustered spectra; where the block
+      // is projected, the full iterative solver fixes the eigenvectors.
+      Eigen::SelfAdjointEigenSolver<Mat<Dim>> it(Hd);
+      Cd = c * Mat<Dim>::Identity() - it.eigenvectors() *
+                                          it.eigenvalues().cwiseMax(0.0).asDiagonal() *
+                                          it.eigenvectors().transpose();
+      for (int r = 0; r < kPairs; ++r) {
+        mu_s[r] = std::max(mu_s[r], 0.0);
+        mu_k[r] = std::max(mu_k[r], 0.0);
+      }
+    } else {
+      Cd = c * Mat<Dim>::Identity() - Hd;
+    }
+    // Columns k_ij = vec(u_i v_j^T) of K (column-major vec: entry a + Dim b is U(a, i) V(b, j)).
+    auto column = [&](int i, int j) {
+      Eigen::Matrix<double, Dim * Dim, 1> k;
+      for (int b = 0; b < Dim; ++b)
+        for (int a = 0; a < Dim; ++a) k[a + Dim * b] = U(a, i) * V(b, j);
+      return k;
+    };
+    Eigen::Matrix<double, Dim * Dim, Dim> Kd;  // k_ii
+    for (int i = 0; i < Dim; ++i) Kd.col(i) = column(i, i);
+    const Eigen::Matrix<double, Dim * Dim, Dim> KC = Kd.lazyProduct(Cd);
+    Block C = KC.lazyProduct(Kd.transpose());
+    for (int i = 0, r = 0; i < Dim; ++i)
+      for (int j = i + 1; j < Dim; ++j, ++r) {
+        const double gs = c - mu_s[r], gk = c - mu_k[r];  // the correction's pair eigenvalues
+        const Eigen::Matrix<double, Dim * Dim, 1> kij = column(i, j), kji = column(j, i);
+        const Eigen::Matrix<double, Dim * Dim, 1> sm = kij + kji, sk = kij - kji;
+        C.noalias() += (0.5 * gs) * sm * sm.transpose();
+        C.noalias() += (0.5 * gk) * sk * sk.transpose();
+      }
+    return C;
   }
 
   /// out = H x on the free DoFs (x must be zero on the fixed DoFs); update_hessian() first.
@@ -266,6 +348,35 @@ class PdPotential {
   const std::vector<Block, Eigen::aligned_allocator<Block>>& corrections() const { return corr_; }
 
  private:
+  /// Phi from the elements' energy densities (EnergyPack::potential_energy at F_e): the inertia
+  /// term, then V_e (density + damping) summed in element order.
+  double sum_value(const Vector& q, const std::vector<double>& density) const {
+    const auto& mesh = s_.mesh();
+    const auto& mass = s_.masses();
+    const auto& beta = s_.damping_coefficients();
+    const double h = s_.options().h, a = s_.options().alpha;
+    const Index nv = mesh.num_vertices(), ne = mesh.num_elements();
+    double inertia = 0;
+    for (Index v = 0; v < nv; ++v)
+      for (int k = 0; k < Dim; ++k) {
+        const double d = q[Dim * v + k] - c_[Dim * v + k];
+        inertia += mass[v] * d * d;
+      }
+    double phi = (1.0 + a * h) / (2 * h * h) * inertia;
+    std::vector<double> per(ne);
+    SolverT::backend_type::for_each_element(ne, [&](Index e) {
+      double v = density[e];
+      if (beta.size() == ne && beta[e] > 0) {
+        const Mat<Dim> F = detail::element_gradient(mesh, e, q);
+        const Mat<Dim> Ft = detail::element_gradient(mesh, e, q_t_);
+        v += beta[e] / (2 * h) * (F - Ft).squaredNorm();
+      }
+      per[e] = mesh.rest_volume(e) * v;
+    });
+    for (double v : per) phi += v;
+    return std::isfinite(phi) ? phi : std::numeric_limits<double>::infinity();
+  }
+
   SolverT& s_;
   Vector q_t_, rhs0_, xfix_, c_, zero_;
   std::vector<Block, Eigen::aligned_allocator<Block>> corr_;
