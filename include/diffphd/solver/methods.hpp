@@ -887,7 +887,7 @@ struct LaggedOperator {
 
 /// \brief Newton on Phi with a lagged Hessian factor (docs/solver.md, "newton-lagged"): each
 /// Newton step solves H d = -g by deflated PCG (the rigid modes of `regions`: the Solver passes
-/// the stiff regions only, Solver::stiff_regions()) whose
+/// the stiff regions and the free bodies, Solver::lagged_regions()) whose
 /// preconditioner is the CHOLMOD factor of the projected Hessian at an earlier iterate, held in
 /// `L` across Newton steps and time steps. When the PCG does not reach the forcing term
 /// eta = min(lagged_forcing_max, sqrt(||g|| / f0)) within `lagged_refresh_cg` iterations (or

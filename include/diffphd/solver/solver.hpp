@@ -582,23 +582,38 @@ class Solver {
   /// The vertex sets whose rigid modes Newton-Krylov deflates (each body, each stiff region).
   const std::vector<std::vector<Index>>& deflation_regions() {
     if (!regions_valid_) {
-      size_t stiff = 0;
       regions_ = diffphd::deflation_regions<Dim>(mesh_, materials_.mu(),
-                                                  options_.newton.stiff_ratio, &stiff);
-      stiff_regions_.assign(regions_.begin(), regions_.begin() + static_cast<long>(stiff));
+                                                  options_.newton.stiff_ratio, &n_stiff_regions_);
       regions_valid_ = true;
     }
     return regions_;
   }
-  /// The stiff regions of deflation_regions() (not the whole bodies): what newton-lagged
-  /// deflates. A body's rigid modes are held by the lagged Hessian factor (their Hessian is
-  /// mostly M / h^2, the same at every iterate); a stiff region's are not (its stiffness rotates
-  /// with it). Measured 2026-12-04 (one thread): armadillo_twist 100x, 6 frames at 1e-2, 2.14 s
-  /// deflating both, 1.67 s the stiff region only, same iterations; cantilever_twist 1e6x 80
-  /// steps, 7 against 8 factorizations (67 with no deflation at all), time within noise.
-  const std::vector<std::vector<Index>>& stiff_regions() {
-    deflation_regions();
-    return stiff_regions_;
+  /// What newton-lagged deflates: the stiff regions of deflation_regions() and the bodies with
+  /// no Dirichlet DoF (free bodies; their translations keep the PCG residual's net force zero,
+  /// so a free body's centre of mass follows the closed form exactly). A clamped body's rigid
+  /// modes are held by the lagged Hessian factor (their Hessian is mostly M / h^2, the same at
+  /// every iterate); a stiff region's are not (its stiffness rotates with it). Measured
+  /// 2026-12-04 (one thread): armadillo_twist 100x, 6 frames at 1e-2, 2.14 s deflating the
+  /// clamped body and the region, 1.67 s the region only, same iterations; cantilever_twist 1e6x
+  /// 80 steps, 7 against 8 factorizations (67 with no deflation at all), time within noise.
+  const std::vector<std::vector<Index>>& lagged_regions() {
+    const auto& all = deflation_regions();
+    lagged_regions_.clear();
+    for (size_t i = 0; i < all.size(); ++i) {
+      bool keep = i < n_stiff_regions_;
+      if (!keep && mask_.rows() == nv_) {  // a body: kept when none of its DoFs is fixed
+        keep = true;
+        for (Index v : all[i])
+          if (mask_.row(v).any()) {
+            keep = false;
+            break;
+          }
+      } else if (!keep) {
+        keep = true;  // no mask: every body is free
+      }
+      if (keep) lagged_regions_.push_back(all[i]);
+    }
+    return lagged_regions_;
   }
 
   /// The method a step runs under the current options. SolverMethod::Auto resolves to
@@ -887,7 +902,7 @@ class Solver {
         r = lbfgs(potential, q, test, options_.newton, options_.max_iterations);
         break;
       case SolverMethod::NewtonLagged:
-        r = newton_lagged(potential, q, test, stiff_regions(), options_.newton,
+        r = newton_lagged(potential, q, test, lagged_regions(), options_.newton,
                           options_.max_iterations, lagged_);
         break;
       default:
@@ -1104,7 +1119,8 @@ class Solver {
   std::conditional_t<kHasContact, Contact, Empty> contact_;
   bool contact_active_ = false;
   std::vector<char> fully_fixed_;
-  std::vector<std::vector<Index>> regions_, stiff_regions_;
+  std::vector<std::vector<Index>> regions_, lagged_regions_;
+  size_t n_stiff_regions_ = 0;
   bool regions_valid_ = false;
   LaggedHessian lagged_;  ///< newton-lagged's factor (kept across steps; in state())
   double weight_norm_ = 0;  ///< 9.81 m/s^2 ||m||: the gradient test's absolute force scale
