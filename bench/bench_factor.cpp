@@ -41,6 +41,8 @@
 #define BENCH_HAVE_IO_TETGEN 1
 #endif
 
+#include "bench_timing.hpp"
+
 #ifndef DIFFPHD_DATA_DIR
 #define DIFFPHD_DATA_DIR "data"
 #endif
@@ -49,31 +51,9 @@ using namespace diffphd;
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double now_s() {
-  return std::chrono::duration<double>(Clock::now().time_since_epoch()).count();
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-
-/// Median wall time of f over repeats; the repeat count adapts to about budget_s in total.
-double time_median(const std::function<void()>& f, int max_reps, double budget_s = 0.6) {
-  double t0 = now_s();
-  f();
-  const double first = now_s() - t0;
-  const int reps = std::max(3, std::min(max_reps, static_cast<int>(budget_s / (first + 1e-9))));
-  std::vector<double> t;
-  for (int r = 0; r < reps; ++r) {
-    t0 = now_s();
-    f();
-    t.push_back(now_s() - t0);
-  }
-  return median(t);
-}
+using bench::median;
+using bench::now_s;
+using bench::time_median;
 
 // ---- meshes -------------------------------------------------------------------------------------
 

@@ -560,12 +560,7 @@ class Solver {
       energy[static_cast<size_t>(e)] = en;
       return P;
     });
-    if (!ok && bad_element)
-      for (Index e = 0; e < ne_; ++e)
-        if (bad_[e]) {
-          *bad_element = e;
-          break;
-        }
+    if (!ok && bad_element) *bad_element = first_bad_element();
     return ok;
   }
 
@@ -585,6 +580,7 @@ class Solver {
       regions_ = diffphd::deflation_regions<Dim>(mesh_, materials_.mu(),
                                                   options_.newton.stiff_ratio, &n_stiff_regions_);
       regions_valid_ = true;
+      lagged_valid_ = false;
     }
     return regions_;
   }
@@ -598,21 +594,17 @@ class Solver {
   /// 80 steps, 7 against 8 factorizations (67 with no deflation at all), time within noise.
   const std::vector<std::vector<Index>>& lagged_regions() {
     const auto& all = deflation_regions();
+    if (lagged_valid_) return lagged_regions_;
+    const auto is_free = [&](const std::vector<Index>& body) {
+      if (mask_.rows() != nv_) return true;  // no mask: every body is free
+      for (Index v : body)
+        if (mask_.row(v).any()) return false;
+      return true;
+    };
     lagged_regions_.clear();
-    for (size_t i = 0; i < all.size(); ++i) {
-      bool keep = i < n_stiff_regions_;
-      if (!keep && mask_.rows() == nv_) {  // a body: kept when none of its DoFs is fixed
-        keep = true;
-        for (Index v : all[i])
-          if (mask_.row(v).any()) {
-            keep = false;
-            break;
-          }
-      } else if (!keep) {
-        keep = true;  // no mask: every body is free
-      }
-      if (keep) lagged_regions_.push_back(all[i]);
-    }
+    for (size_t i = 0; i < all.size(); ++i)
+      if (i < n_stiff_regions_ || is_free(all[i])) lagged_regions_.push_back(all[i]);
+    lagged_valid_ = true;
     return lagged_regions_;
   }
 
@@ -1020,11 +1012,13 @@ class Solver {
       // counted), then factor the new matrix.
       if (mask != mask_) {
         mask_ = mask;
+        lagged_valid_ = false;
         system_.set_dirichlet(mask_.any() ? mask_ : FixedMask());
       }
       factor();
     } else if (mask != mask_) {
       mask_ = mask;
+      lagged_valid_ = false;
       system_.set_dirichlet(mask_.any() ? mask_ : FixedMask());
     }
   }
@@ -1084,13 +1078,14 @@ class Solver {
     const bool ok = scatter(q, b, [&](Index e, const Mat<Dim>& F) -> Mat<Dim> {
       return EnergyPack::template weighted_projection<double, Dim>(F, params_[e], means_[e]);
     });
-    if (!ok)
-      for (Index e = 0; e < ne_; ++e)
-        if (bad_[e]) {
-          *bad_element = e;
-          break;
-        }
+    if (!ok) *bad_element = first_bad_element();
     return ok;
+  }
+  /// The first element the last scatter() flagged (-1 when none).
+  Index first_bad_element() const {
+    for (Index e = 0; e < ne_; ++e)
+      if (bad_[e]) return e;
+    return -1;
   }
 
   SimplicialMesh<Dim> mesh_;
@@ -1122,6 +1117,7 @@ class Solver {
   std::vector<std::vector<Index>> regions_, lagged_regions_;
   size_t n_stiff_regions_ = 0;
   bool regions_valid_ = false;
+  bool lagged_valid_ = false;  // lagged_regions_ matches regions_ and mask_
   LaggedHessian lagged_;  ///< newton-lagged's factor (kept across steps; in state())
   double weight_norm_ = 0;  ///< 9.81 m/s^2 ||m||: the gradient test's absolute force scale
   /// Round-off of grad Phi: 8 eps_mach ||(w_e V_e ||G_e||_F sqrt(Dim))_e||, the size of the
