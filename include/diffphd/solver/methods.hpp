@@ -132,6 +132,16 @@ struct MethodOptions {
   double lagged_forcing_max = 1e-4;
 };
 
+/// \brief What the Solver hands a method for one step besides Phi, the first iterate and the
+/// convergence test.
+struct MethodInputs {
+  const MethodOptions& options;
+  int max_iterations;
+  /// The vertex sets whose rigid modes the Newton methods deflate (Solver::deflation_regions()
+  /// for newton-krylov, Solver::lagged_regions() for newton-lagged; unused by the others).
+  const std::vector<std::vector<Index>>& regions;
+};
+
 /// \brief Vertex sets whose rigid modes are deflated: every connected component of the mesh
 /// (each free body) and every connected set of elements with mu_e >= ratio min mu (each stiff
 /// region) that is not a whole body. Connectivity through shared vertices. The stiff regions
@@ -333,7 +343,7 @@ int deflated_pcg(Potential& P, const MatrixX& Z, const MatrixX& HZ,
 /// \brief The coarse space of deflated_pcg() at x: Z = deflation_basis(P, regions, x) (the
 /// rigid modes of each region, orthonormal, zero on Dirichlet DoFs), HZ = H Z (one Hessian
 /// product per column) and the LDL^T factor of E = Z^T H Z. Empty (Z with 0 columns) when
-/// `regions` is empty. Shared by newton_krylov() and the deflated-PCG adjoint (adjoint.hpp).
+/// `regions` is empty. Shared by NewtonKrylov, NewtonLagged and the deflated-PCG adjoint (adjoint.hpp).
 template <class Potential>
 void deflation_space(Potential& P, const std::vector<std::vector<Index>>& regions,
                      const VectorX& x, MatrixX& Z, MatrixX& HZ, Eigen::LDLT<MatrixX>& E) {
@@ -503,115 +513,143 @@ MethodResult newton_loop(Potential& P, VectorX& q, GradientTest& test, const Met
 /// forcing term eta = min(forcing_max, sqrt(||g|| / f0)) (superlinear), Armijo backtracking
 /// (detail::newton_loop). q holds the first iterate (Dirichlet values imposed) on entry and the
 /// answer on exit.
-template <class Potential>
-MethodResult newton_krylov(Potential& P, VectorX& q, GradientTest& test,
-                           const std::vector<std::vector<Index>>& regions,
-                           const MethodOptions& o, int max_iterations) {
-  constexpr double kTight = 1e-6;
-  MatrixX Z, HZ;
-  Eigen::LDLT<MatrixX> E;
-  // Eisenstat-Walker: the previous step's start x, gradient g, direction d, H d and eta.
-  const bool ew = o.forcing == Forcing::EisenstatWalker;
-  VectorX x_prev, g_prev, d_prev, Hd_prev;
-  double eta_prev = o.forcing_max;
-  auto forcing = [&](const VectorX& x, const VectorX& g, double gn) {
-    if (!ew) return std::min(o.forcing_max, std::sqrt(gn / std::max(test.f0, 1e-300)));
-    double eta = o.forcing_max;
-    const double dd = d_prev.size() ? d_prev.squaredNorm() : 0.0;
-    if (dd > 0) {
-      // The step taken was s = alpha d_prev (line search); the linear model predicted the
-      // gradient g_prev + alpha H d_prev there.
-      const double alpha = (x - x_prev).dot(d_prev) / dd;
-      VectorX lin = g_prev + alpha * Hd_prev;
-      P.mask(lin);
-      eta = std::abs(gn - lin.norm()) / std::max(g_prev.norm(), 1e-300);
-      const double safe = std::pow(eta_prev, 0.5 * (1 + std::sqrt(5.0)));
-      if (safe > 0.1) eta = std::max(eta, safe);
-    }
-    eta = std::min(eta, o.forcing_max);
-    return std::max(eta, 0.5 * test.target() / std::max(gn, 1e-300));
-  };
-  auto direction = [&](const VectorX& x, const VectorX& g, double gn, bool tight,
-                       MethodResult& res, VectorX& d) {
-    static const std::vector<std::vector<Index>> kNone;
-    if (!tight)  // the coarse space at this iterate
-      deflation_space(P, o.deflation ? regions : kNone, x, Z, HZ, E);
-    const double eta = tight ? kTight : forcing(x, g, gn);
-    res.inner_iterations += 1 + deflated_pcg(P, Z, HZ, E, VectorX(-g), d, eta, o.max_cg_iterations);
-    if (ew) {
-      x_prev = x, g_prev = g, d_prev = d, eta_prev = eta;
-      P.hessian_vector(d, Hd_prev);
-    }
-    return eta > kTight;
-  };
-  return detail::newton_loop(P, q, test, o, max_iterations, direction);
-}
+class NewtonKrylov {
+ public:
+  static constexpr SolverMethod kMethod = SolverMethod::NewtonKrylov;
+  /// Nothing is kept between steps.
+  void reset() {}
+  template <class Potential>
+  MethodResult minimise(Potential& P, VectorX& q, GradientTest& test,
+                        const MethodInputs& in) const {
+    return run(P, q, test, in.regions, in.options, in.max_iterations);
+  }
+
+ private:
+  template <class Potential>
+  static MethodResult run(Potential& P, VectorX& q, GradientTest& test,
+                          const std::vector<std::vector<Index>>& regions, const MethodOptions& o,
+                          int max_iterations) {
+    constexpr double kTight = 1e-6;
+    MatrixX Z, HZ;
+    Eigen::LDLT<MatrixX> E;
+    // Eisenstat-Walker: the previous step's start x, gradient g, direction d, H d and eta.
+    const bool ew = o.forcing == Forcing::EisenstatWalker;
+    VectorX x_prev, g_prev, d_prev, Hd_prev;
+    double eta_prev = o.forcing_max;
+    auto forcing = [&](const VectorX& x, const VectorX& g, double gn) {
+      if (!ew) return std::min(o.forcing_max, std::sqrt(gn / std::max(test.f0, 1e-300)));
+      double eta = o.forcing_max;
+      const double dd = d_prev.size() ? d_prev.squaredNorm() : 0.0;
+      if (dd > 0) {
+        // The step taken was s = alpha d_prev (line search); the linear model predicted the
+        // gradient g_prev + alpha H d_prev there.
+        const double alpha = (x - x_prev).dot(d_prev) / dd;
+        VectorX lin = g_prev + alpha * Hd_prev;
+        P.mask(lin);
+        eta = std::abs(gn - lin.norm()) / std::max(g_prev.norm(), 1e-300);
+        const double safe = std::pow(eta_prev, 0.5 * (1 + std::sqrt(5.0)));
+        if (safe > 0.1) eta = std::max(eta, safe);
+      }
+      eta = std::min(eta, o.forcing_max);
+      return std::max(eta, 0.5 * test.target() / std::max(gn, 1e-300));
+    };
+    auto direction = [&](const VectorX& x, const VectorX& g, double gn, bool tight,
+                         MethodResult& res, VectorX& d) {
+      static const std::vector<std::vector<Index>> kNone;
+      if (!tight)  // the coarse space at this iterate
+        deflation_space(P, o.deflation ? regions : kNone, x, Z, HZ, E);
+      const double eta = tight ? kTight : forcing(x, g, gn);
+      res.inner_iterations +=
+          1 + deflated_pcg(P, Z, HZ, E, VectorX(-g), d, eta, o.max_cg_iterations);
+      if (ew) {
+        x_prev = x, g_prev = g, d_prev = d, eta_prev = eta;
+        P.hessian_vector(d, Hd_prev);
+      }
+      return eta > kTight;
+    };
+    return detail::newton_loop(P, q, test, o, max_iterations, direction);
+  }
+};
 
 /// \brief L-BFGS on Phi with H0^-1 = A^-1 (two-loop recursion), Armijo backtracking, the
 /// preconditioned steepest descent direction when the L-BFGS direction does not descend.
-template <class Potential>
-MethodResult lbfgs(Potential& P, VectorX& q, GradientTest& test, const MethodOptions& o,
-                   int max_iterations) {
-  MethodResult res;
-  VectorX g, b;
-  Index bad = -1;
-  double gn = 0, phi = 0;
-  if (!detail::start_method(P, q, test, res, g, b, gn, phi)) return res;
-  detail::StallWatch watch{40};  // L-BFGS reduces ||g|| slowly and not monotonically
-  bool stalled = false;
-  std::deque<VectorX> S, Y;
-  std::deque<double> rho;
-  while (true) {
-    res.gradient_ratio = test.ratio(gn);
-    if (test.passed(gn)) {
-      res.converged = true;
-      return res;
-    }
-    if ((stalled = watch.stalled(gn, phi))) break;
-    if (res.iterations >= max_iterations) break;
-    // Two-loop recursion with H0 = A^-1.
-    VectorX r = g;
-    std::vector<double> al(S.size());
-    for (int i = static_cast<int>(S.size()) - 1; i >= 0; --i) {
-      al[i] = rho[i] * S[i].dot(r);
-      r -= al[i] * Y[i];
-    }
-    VectorX z;
-    P.precondition(r, z);
-    ++res.inner_iterations;
-    for (size_t i = 0; i < S.size(); ++i) {
-      const double be = rho[i] * Y[i].dot(z);
-      z += (al[i] - be) * S[i];
-    }
-    VectorX d = -z;
-    if (!(g.dot(d) < 0)) {
-      S.clear(), Y.clear(), rho.clear();
-      P.precondition(g, d);
-      ++res.inner_iterations;
-      d = -d;
-    }
-    const VectorX q_old = q, g_old = g;
-    ++res.iterations;
-    if (!detail::line_search(P, q, g, b, phi, d, o.max_line_search, &bad)) {
-      std::ostringstream os;
-      os << "line search failed at L-BFGS iteration " << res.iterations << " (gradient ratio "
-         << test.ratio(gn) << ")";
-      res.message = os.str();
-      return res;
-    }
-    gn = g.norm();
-    VectorX s = q - q_old, y = g - g_old;
-    const double sy = s.dot(y);
-    if (sy > 1e-14 * s.norm() * y.norm()) {
-      S.push_back(std::move(s));
-      Y.push_back(std::move(y));
-      rho.push_back(1.0 / sy);
-      if (static_cast<int>(S.size()) > o.lbfgs_history) S.pop_front(), Y.pop_front(), rho.pop_front();
-    }
+class Lbfgs {
+ public:
+  static constexpr SolverMethod kMethod = SolverMethod::LBFGS;
+  /// Nothing is kept between steps (the history starts empty each step).
+  void reset() {}
+  template <class Potential>
+  MethodResult minimise(Potential& P, VectorX& q, GradientTest& test,
+                        const MethodInputs& in) const {
+    return run(P, q, test, in.options, in.max_iterations);
   }
-  res.message = detail::not_converged("L-BFGS", res, watch, stalled);
-  return res;
-}
+
+ private:
+  template <class Potential>
+  static MethodResult run(Potential& P, VectorX& q, GradientTest& test, const MethodOptions& o,
+                          int max_iterations) {
+    MethodResult res;
+    VectorX g, b;
+    Index bad = -1;
+    double gn = 0, phi = 0;
+    if (!detail::start_method(P, q, test, res, g, b, gn, phi)) return res;
+    detail::StallWatch watch{40};  // L-BFGS reduces ||g|| slowly and not monotonically
+    bool stalled = false;
+    std::deque<VectorX> S, Y;
+    std::deque<double> rho;
+    while (true) {
+      res.gradient_ratio = test.ratio(gn);
+      if (test.passed(gn)) {
+        res.converged = true;
+        return res;
+      }
+      if ((stalled = watch.stalled(gn, phi))) break;
+      if (res.iterations >= max_iterations) break;
+      // Two-loop recursion with H0 = A^-1.
+      VectorX r = g;
+      std::vector<double> al(S.size());
+      for (int i = static_cast<int>(S.size()) - 1; i >= 0; --i) {
+        al[i] = rho[i] * S[i].dot(r);
+        r -= al[i] * Y[i];
+      }
+      VectorX z;
+      P.precondition(r, z);
+      ++res.inner_iterations;
+      for (size_t i = 0; i < S.size(); ++i) {
+        const double be = rho[i] * Y[i].dot(z);
+        z += (al[i] - be) * S[i];
+      }
+      VectorX d = -z;
+      if (!(g.dot(d) < 0)) {
+        S.clear(), Y.clear(), rho.clear();
+        P.precondition(g, d);
+        ++res.inner_iterations;
+        d = -d;
+      }
+      const VectorX q_old = q, g_old = g;
+      ++res.iterations;
+      if (!detail::line_search(P, q, g, b, phi, d, o.max_line_search, &bad)) {
+        std::ostringstream os;
+        os << "line search failed at L-BFGS iteration " << res.iterations << " (gradient ratio "
+           << test.ratio(gn) << ")";
+        res.message = os.str();
+        return res;
+      }
+      gn = g.norm();
+      VectorX s = q - q_old, y = g - g_old;
+      const double sy = s.dot(y);
+      if (sy > 1e-14 * s.norm() * y.norm()) {
+        S.push_back(std::move(s));
+        Y.push_back(std::move(y));
+        rho.push_back(1.0 / sy);
+        if (static_cast<int>(S.size()) > o.lbfgs_history)
+          S.pop_front(), Y.pop_front(), rho.pop_front();
+      }
+    }
+    res.message = detail::not_converged("L-BFGS", res, watch, stalled);
+    return res;
+  }
+};
 
 namespace detail {
 /// The free-DoF numbering of P's Dirichlet mask: free_index[flat DoF] = its index among the
@@ -764,9 +802,16 @@ class HessianAssembler {
       Index* out = e_slot_.data() + static_cast<size_t>(e) * N * N;
       each_e(e, [&](Index r, Index c) { *out++ = slot(r, c); });
     }
+    a_nnz_ = As.nonZeros();
     built_ = true;
   }
   bool built() const { return built_; }
+  /// Built for a matrix A with the pattern size P's Solver holds now (a held assembler whose A
+  /// changed pattern must be built again: assemble() would write into the wrong slots).
+  template <class Potential>
+  bool matches(Potential& P) const {
+    return built_ && P.solver().system().matrix().nonZeros() == a_nnz_;
+  }
 
   /// The projected Hessian at the blocks P holds (build() first, with the same free set).
   template <class Potential>
@@ -813,6 +858,7 @@ class HessianAssembler {
  private:
   SparseMatrix H_;
   std::vector<Index> a_slot_, e_slot_;
+  Index a_nnz_ = 0;
   bool built_ = false;
 };
 
@@ -820,32 +866,62 @@ class HessianAssembler {
 /// analysed once per step) every Newton step (detail::newton_loop). The same-model reference.
 /// A factorization that fails (an indefinite assembled matrix should not occur after the
 /// projection) falls back to the preconditioned steepest descent direction of the loop.
-template <class Potential>
-MethodResult newton_direct(Potential& P, VectorX& q, GradientTest& test, const MethodOptions& o,
-                           int max_iterations) {
-  const Index n = q.size();
-  std::vector<Index> free_index;
-  const Index nf = detail::free_numbering(P, n, free_index);
-  SparseFactor factor;
-  HessianAssembler assembler;
-  bool analysed = false;
-  auto direction = [&](const VectorX&, const VectorX& g, double, bool, MethodResult& res,
-                       VectorX& d) {
-    d.setZero(n);
-    if (nf == 0) return false;
-    if (!assembler.built()) assembler.build(P, free_index, nf);
-    const SparseMatrix& H = assembler.assemble(P);
-    if (!analysed) factor.analyze_pattern(H), analysed = true;
-    factor.factorize(H);
-    if (factor.info() != FactorStatus::Success) return false;
-    detail::solve_on_free(factor, free_index, nf, VectorX(-g), d);
-    ++res.inner_iterations;
-    return false;  // exact already: no tighter solve
-  };
-  return detail::newton_loop(P, q, test, o, max_iterations, direction);
-}
+class NewtonDirect {
+ public:
+  static constexpr SolverMethod kMethod = SolverMethod::NewtonDirect;
+  /// Drops the pattern and the factor (the next step numbers, builds and analyses afresh).
+  void reset() {
+    free_index_.clear();
+    n_free_ = 0;
+    analysed_ = false;
+    assembler_ = HessianAssembler();
+  }
+  /// Pattern analyses so far (one per free set: the METIS ordering is kept across steps).
+  long analyses() const { return analyses_; }
 
-/// \brief What newton_lagged() keeps between Newton steps and time steps (Solver owns one): the
+  template <class Potential>
+  MethodResult minimise(Potential& P, VectorX& q, GradientTest& test, const MethodInputs& in) {
+    const Index n = q.size();
+    std::vector<Index> fi;
+    const Index nf = detail::free_numbering(P, n, fi);
+    // Another Dirichlet set (or another pattern of A): another pattern.
+    if (fi != free_index_ || !assembler_.matches(P)) {
+      free_index_ = std::move(fi);
+      n_free_ = nf;
+      analysed_ = false;
+      assembler_ = HessianAssembler();
+    }
+    auto direction = [&](const VectorX&, const VectorX& g, double, bool, MethodResult& res,
+                         VectorX& d) {
+      d.setZero(n);
+      if (n_free_ == 0) return false;
+      if (!assembler_.built()) assembler_.build(P, free_index_, n_free_);
+      const SparseMatrix& H = assembler_.assemble(P);
+      if (!analysed_) {
+        factor_.analyze_pattern(H);
+        ++analyses_;
+        analysed_ = factor_.info() == FactorStatus::Success;
+        if (!analysed_) return false;
+      }
+      factor_.factorize(H);
+      if (factor_.info() != FactorStatus::Success) return false;
+      detail::solve_on_free(factor_, free_index_, n_free_, VectorX(-g), d);
+      ++res.inner_iterations;
+      return false;  // exact already: no tighter solve
+    };
+    return detail::newton_loop(P, q, test, in.options, in.max_iterations, direction);
+  }
+
+ private:
+  std::vector<Index> free_index_;
+  Index n_free_ = 0;
+  SparseFactor factor_;
+  HessianAssembler assembler_;
+  bool analysed_ = false;
+  long analyses_ = 0;
+};
+
+/// \brief What NewtonLagged keeps between Newton steps and time steps (the Solver's holds one): the
 /// free-DoF numbering, the CHOLMOD factor of the projected Hessian at `iterate` (pattern
 /// analysed once per free set) and counters. The factor is a preconditioner only: a stale one
 /// changes the CG iteration count, not the answer's tolerance.
@@ -895,71 +971,90 @@ struct LaggedOperator {
 /// iterate and the direction solved with it (direct Newton's step). Where the Hessian changes
 /// slowly from step to step (low contrast, large meshes) most steps reuse one factor; where it
 /// does not, the method falls back to direct Newton.
-template <class Potential>
-MethodResult newton_lagged(Potential& P, VectorX& q, GradientTest& test,
-                           const std::vector<std::vector<Index>>& regions, const MethodOptions& o,
-                           int max_iterations, LaggedHessian& L) {
-  const Index n = q.size();
-  {
-    std::vector<Index> fi;
-    const Index nf = detail::free_numbering(P, n, fi);
-    if (fi != L.free_index) {  // another Dirichlet set: another pattern
-      L.free_index = std::move(fi);
-      L.n_free = nf;
-      L.analysed = L.valid = false;
-      L.iterate.resize(0);
-    }
+class NewtonLagged {
+ public:
+  static constexpr SolverMethod kMethod = SolverMethod::NewtonLagged;
+  /// Drops the held factor (keeps the analysed pattern and the counters).
+  void reset() { held_.invalidate(); }
+  /// The held factor, where it was formed and the counters (Solver::state() records the
+  /// linearisation point).
+  LaggedHessian& held() { return held_; }
+  const LaggedHessian& held() const { return held_; }
+  template <class Potential>
+  MethodResult minimise(Potential& P, VectorX& q, GradientTest& test, const MethodInputs& in) {
+    return run(P, q, test, in.regions, in.options, in.max_iterations, held_);
   }
-  detail::LaggedOperator<Potential> op{P, L};
-  MatrixX Z, HZ;
-  Eigen::LDLT<MatrixX> E;
-  static const std::vector<std::vector<Index>> kNone;
-  // Forms the factor of the projected Hessian whose element blocks P holds (at `at`).
-  auto form = [&](const VectorX& at) {
-    if (!L.analysed) L.assembler.build(P, L.free_index, L.n_free);
-    const SparseMatrix& H = L.assembler.assemble(P);
-    if (!L.analysed) {
-      L.factor.analyze_pattern(H);
-      L.analysed = L.factor.info() == FactorStatus::Success;
-      if (!L.analysed) return false;
+
+ private:
+  LaggedHessian held_;
+
+  template <class Potential>
+  static MethodResult run(Potential& P, VectorX& q, GradientTest& test,
+                          const std::vector<std::vector<Index>>& regions, const MethodOptions& o,
+                          int max_iterations, LaggedHessian& L) {
+    const Index n = q.size();
+    {
+      std::vector<Index> fi;
+      const Index nf = detail::free_numbering(P, n, fi);
+      // Another Dirichlet set (or another pattern of A): another pattern.
+      if (fi != L.free_index || (L.assembler.built() && !L.assembler.matches(P))) {
+        L.free_index = std::move(fi);
+        L.n_free = nf;
+        L.analysed = L.valid = false;
+        L.iterate.resize(0);
+      }
     }
-    L.factor.factorize(H);
-    ++L.refreshes;
-    L.valid = L.factor.info() == FactorStatus::Success;
-    if (L.valid) L.iterate = at;
-    return L.valid;
-  };
-  auto direction = [&](const VectorX& x, const VectorX& g, double gn, bool tight,
-                       MethodResult& res, VectorX& d) {
-    d.setZero(n);
-    if (L.n_free == 0) return false;
-    if (!L.valid && L.pending.size() == n) {  // a restored linearisation point
-      const VectorX at = L.pending;
-      P.update_hessian(at);
-      const bool ok = form(at);
-      P.update_hessian(x);  // the blocks of this iterate again
-      if (!ok) L.invalidate();
-    }
-    L.pending.resize(0);
-    // With the factor of this very H: direct Newton's step, one solve.
-    auto fresh = [&]() {
-      if (!form(x)) return false;
-      op.precondition(VectorX(-g), d);
-      ++res.inner_iterations;
-      return false;  // nothing tighter to try
+    detail::LaggedOperator<Potential> op{P, L};
+    MatrixX Z, HZ;
+    Eigen::LDLT<MatrixX> E;
+    static const std::vector<std::vector<Index>> kNone;
+    // Forms the factor of the projected Hessian whose element blocks P holds (at `at`).
+    auto form = [&](const VectorX& at) {
+      if (!L.analysed) L.assembler.build(P, L.free_index, L.n_free);
+      const SparseMatrix& H = L.assembler.assemble(P);
+      if (!L.analysed) {
+        L.factor.analyze_pattern(H);
+        L.analysed = L.factor.info() == FactorStatus::Success;
+        if (!L.analysed) return false;
+      }
+      L.factor.factorize(H);
+      ++L.refreshes;
+      L.valid = L.factor.info() == FactorStatus::Success;
+      if (L.valid) L.iterate = at;
+      return L.valid;
     };
-    if (!L.valid || tight) return fresh();
-    deflation_space(P, o.deflation ? regions : kNone, x, Z, HZ, E);
-    const double eta =
-        std::max(std::min(o.lagged_forcing_max, std::sqrt(gn / std::max(test.f0, 1e-300))),
-                 0.5 * test.target() / std::max(gn, 1e-300));
-    double rel = 0;
-    const int it = deflated_pcg(op, Z, HZ, E, VectorX(-g), d, eta, o.lagged_refresh_cg, &rel);
-    res.inner_iterations += 1 + it;
-    if (!(rel <= eta)) return fresh();  // the held factor is too far from H here
-    return true;  // a lagged direction can be tightened by forming the factor here
-  };
-  return detail::newton_loop(P, q, test, o, max_iterations, direction);
-}
+    auto direction = [&](const VectorX& x, const VectorX& g, double gn, bool tight,
+                         MethodResult& res, VectorX& d) {
+      d.setZero(n);
+      if (L.n_free == 0) return false;
+      if (!L.valid && L.pending.size() == n) {  // a restored linearisation point
+        const VectorX at = L.pending;
+        P.update_hessian(at);
+        const bool ok = form(at);
+        P.update_hessian(x);  // the blocks of this iterate again
+        if (!ok) L.invalidate();
+      }
+      L.pending.resize(0);
+      // With the factor of this very H: direct Newton's step, one solve.
+      auto fresh = [&]() {
+        if (!form(x)) return false;
+        op.precondition(VectorX(-g), d);
+        ++res.inner_iterations;
+        return false;  // nothing tighter to try
+      };
+      if (!L.valid || tight) return fresh();
+      deflation_space(P, o.deflation ? regions : kNone, x, Z, HZ, E);
+      const double eta =
+          std::max(std::min(o.lagged_forcing_max, std::sqrt(gn / std::max(test.f0, 1e-300))),
+                   0.5 * test.target() / std::max(gn, 1e-300));
+      double rel = 0;
+      const int it = deflated_pcg(op, Z, HZ, E, VectorX(-g), d, eta, o.lagged_refresh_cg, &rel);
+      res.inner_iterations += 1 + it;
+      if (!(rel <= eta)) return fresh();  // the held factor is too far from H here
+      return true;  // a lagged direction can be tightened by forming the factor here
+    };
+    return detail::newton_loop(P, q, test, o, max_iterations, direction);
+  }
+};
 
 }  // namespace diffphd

@@ -327,7 +327,7 @@ class Solver {
     if (!q.allFinite() || !v.allFinite()) throw InputError("set_state: non-finite state");
     positions_ = q;
     velocities_ = v;
-    lagged_.invalidate();  // a new start: newton-lagged forms its factor afresh
+    lagged_.reset();  // a new start: newton-lagged forms its factor afresh
   }
   void set_time(double t) { t_ = t; }
 
@@ -342,8 +342,8 @@ class Solver {
     s.external_forces = f_ext_;
     s.activations = activation_;
     s.previous_iterate = last_iterate_prev_;
-    if (lagged_.valid) s.hessian_iterate = lagged_.iterate;
-    else s.hessian_iterate = lagged_.pending;
+    const LaggedHessian& held = lagged_.held();
+    s.hessian_iterate = held.valid ? held.iterate : held.pending;
     s.drivers = bc_.drivers();
     return s;
   }
@@ -368,7 +368,7 @@ class Solver {
     activation_ = s.activations;
     for (Index e = 0; e < ne_; ++e) params_[e].activation = activation_[e];
     last_iterate_prev_ = s.previous_iterate;
-    lagged_.pending = s.hessian_iterate;  // newton-lagged forms its factor there first
+    lagged_.held().pending = s.hessian_iterate;  // newton-lagged forms its factor there first
   }
 
   /// Muscle (fibre terms only): per-element stiffness k_e (#E) and fibre directions (#E by 3,
@@ -393,7 +393,7 @@ class Solver {
   void set_activation(const VectorX& activation) {
     if (activation.size() != ne_ || !activation.allFinite())
       throw InputError("set_activation: expected #E finite activations");
-    if (activation != activation_) lagged_.invalidate();  // the Hessian's blocks change
+    if (activation != activation_) lagged_.reset();  // the Hessian's blocks change
     activation_ = activation;
     for (Index e = 0; e < ne_; ++e) params_[e].activation = activation_[e];
   }
@@ -619,7 +619,9 @@ class Solver {
   }
 
   /// newton-lagged's held Hessian factor and its counters (refreshes, solves).
-  const LaggedHessian& lagged_hessian() const { return lagged_; }
+  const LaggedHessian& lagged_hessian() const { return lagged_.held(); }
+  /// newton-direct's method object (its ordering and pattern are kept across steps).
+  const NewtonDirect& direct_method() const { return direct_; }
 
  private:
   static Vector flat(const VertexMatrix<Dim>& x) {
@@ -873,7 +875,27 @@ class Solver {
     return t;
   }
 
-  /// Newton-Krylov, L-BFGS or direct Newton on Phi from the first iterate q (no contact).
+  /// f(method object) for a minimiser of Phi (every SolverMethod but PD and Auto): the objects
+  /// the Solver holds, so that what a method keeps between steps (newton-lagged's factor,
+  /// newton-direct's ordering and pattern) persists.
+  template <class F>
+  MethodResult with_minimiser(SolverMethod m, F&& f) {
+    switch (m) {
+      case SolverMethod::NewtonKrylov:
+        return f(newton_krylov_);
+      case SolverMethod::LBFGS:
+        return f(lbfgs_);
+      case SolverMethod::NewtonLagged:
+        return f(lagged_);
+      case SolverMethod::NewtonDirect:
+        return f(direct_);
+      default:
+        throw std::logic_error(std::string("Solver: \"") + to_string(m) +
+                               "\" is not a minimiser of Phi");
+    }
+  }
+
+  /// A minimiser of Phi (newton-lagged, newton-krylov, L-BFGS or direct Newton) on Phi from the first iterate q (no contact).
   bool iterate_minimiser(PdPotential<Solver>& potential, Vector& q, StepReport& rep,
                          Vector& q_prev, std::chrono::steady_clock::time_point t_start) {
     if constexpr (kHasContact) {
@@ -884,23 +906,11 @@ class Solver {
       }
     }
     GradientTest test = gradient_test();
-    MethodResult r;
-    switch (rep.method) {
-      case SolverMethod::NewtonKrylov:
-        r = newton_krylov(potential, q, test, deflation_regions(), options_.newton,
-                          options_.max_iterations);
-        break;
-      case SolverMethod::LBFGS:
-        r = lbfgs(potential, q, test, options_.newton, options_.max_iterations);
-        break;
-      case SolverMethod::NewtonLagged:
-        r = newton_lagged(potential, q, test, lagged_regions(), options_.newton,
-                          options_.max_iterations, lagged_);
-        break;
-      default:
-        r = newton_direct(potential, q, test, options_.newton, options_.max_iterations);
-        break;
-    }
+    const MethodInputs in{options_.newton, options_.max_iterations,
+                          rep.method == SolverMethod::NewtonLagged ? lagged_regions()
+                                                                   : deflation_regions()};
+    const MethodResult r = with_minimiser(
+        rep.method, [&](auto& method) { return method.minimise(potential, q, test, in); });
     rep.iterations = r.iterations;
     rep.inner_iterations = r.inner_iterations;
     rep.gradient_ratio = r.gradient_ratio;
@@ -942,7 +952,7 @@ class Solver {
     mass_ = mesh_.lumped_mass(materials_.densities());
     weight_norm_ = 9.81 * mass_.norm();
     regions_valid_ = false;
-    lagged_.invalidate();  // A and the Hessian's blocks change
+    lagged_.reset();  // A and the Hessian's blocks change
     const VectorX mu = materials_.mu(), lambda = materials_.lambda();
     const VectorX& V = mesh_.rest_volumes();
     const double vol = V.sum();
@@ -1118,7 +1128,12 @@ class Solver {
   size_t n_stiff_regions_ = 0;
   bool regions_valid_ = false;
   bool lagged_valid_ = false;  // lagged_regions_ matches regions_ and mask_
-  LaggedHessian lagged_;  ///< newton-lagged's factor (kept across steps; in state())
+  // The minimisers of Phi (iterate_minimiser). newton-lagged keeps its factor across steps
+  // (its linearisation point is in state()); newton-direct keeps its ordering and pattern.
+  NewtonKrylov newton_krylov_;
+  Lbfgs lbfgs_;
+  NewtonLagged lagged_;
+  NewtonDirect direct_;
   double weight_norm_ = 0;  ///< 9.81 m/s^2 ||m||: the gradient test's absolute force scale
   /// Round-off of grad Phi: 8 eps_mach ||(w_e V_e ||G_e||_F sqrt(Dim))_e||, the size of the
   /// element forces that cancel in A q - b(q) (at 1e6x contrast it exceeds 1e-12 f0).
