@@ -469,6 +469,23 @@ TEST_CASE("Method options set in code are checked like the others (named InputEr
   CHECK_NOTHROW(Solver<3, CoroVol>(mesh, mats, SolverOptions{}));
 }
 
+namespace {
+// A solver on `mesh` clamped at x = 0 and twisted about the x axis at x = 1 (1 rad/s).
+std::unique_ptr<Solver<3, CoroVol>> twisted_bar(const SimplicialMesh<3>& mesh,
+                                                const MaterialField& mats, const SolverOptions& o) {
+  auto s = std::make_unique<Solver<3, CoroVol>>(mesh, mats, o);
+  s->fix_vertices(vertices_at_x(mesh, 0.0));
+  Driver<3> d;
+  d.vertices = vertices_at_x(mesh, 1.0);
+  d.kind = Driver<3>::Kind::Twist;
+  d.axis = Vec<3>::UnitX();
+  d.center = Vec<3>(1.0, 0.1, 0.1);
+  d.angular_velocity = 1.0;
+  s->add_driver(d);
+  return s;
+}
+}  // namespace
+
 TEST_CASE("newton-lagged reuses one Hessian factor across steps, and a restored state continues "
           "bitwise equal",
           "[methods]") {
@@ -478,18 +495,7 @@ TEST_CASE("newton-lagged reuses one Hessian factor across steps, and a restored 
   o.method = SolverMethod::NewtonLagged;
   o.eps_rel = 1e-8;
   o.h = 1.0 / 60;
-  auto make = [&]() {
-    auto s = std::make_unique<Solver<3, CoroVol>>(mesh, mats, o);
-    s->fix_vertices(vertices_at_x(mesh, 0.0));
-    Driver<3> d;
-    d.vertices = vertices_at_x(mesh, 1.0);
-    d.kind = Driver<3>::Kind::Twist;
-    d.axis = Vec<3>::UnitX();
-    d.center = Vec<3>(1.0, 0.1, 0.1);
-    d.angular_velocity = 1.0;
-    s->add_driver(d);
-    return s;
-  };
+  auto make = [&]() { return twisted_bar(mesh, mats, o); };
   auto a = make();
   int newton = 0;
   SolverState<3> mid;
@@ -528,18 +534,7 @@ TEST_CASE("newton-direct keeps its ordering across steps and gives the same step
   o.method = SolverMethod::NewtonDirect;
   o.eps_rel = 1e-8;
   o.h = 1.0 / 60;
-  auto make = [&]() {
-    auto s = std::make_unique<Solver<3, CoroVol>>(mesh, mats, o);
-    s->fix_vertices(vertices_at_x(mesh, 0.0));
-    Driver<3> d;
-    d.vertices = vertices_at_x(mesh, 1.0);
-    d.kind = Driver<3>::Kind::Twist;
-    d.axis = Vec<3>::UnitX();
-    d.center = Vec<3>(1.0, 0.1, 0.1);
-    d.angular_velocity = 1.0;
-    s->add_driver(d);
-    return s;
-  };
+  auto make = [&]() { return twisted_bar(mesh, mats, o); };
   auto a = make();
   for (int i = 0; i < 5; ++i) {
     // The oracle: a solver made for this one step from a's state (its own ordering, pattern
