@@ -165,15 +165,32 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (a == "--csv") csv = next();
-    else if (a == "--reps") reps = std::stoi(next());
-    else if (a == "--max-s-nnz") max_s_nnz = std::stoll(next());
-    else if (a == "--boxes") boxes = parse_list(next());
-    else if (a == "--mesh") mesh_path = next();
-    else if (a == "--no-mesh") use_mesh = false;
-    else if (a == "--spikes") K = std::stoi(next());
-    else {
-      std::cerr << "unknown argument " << a << "\n";
+    try {
+      if (a == "--csv")
+        csv = next();
+      else if (a == "--reps")
+        reps = std::stoi(next());
+      else if (a == "--max-s-nnz")
+        max_s_nnz = std::stoll(next());
+      else if (a == "--boxes")
+        boxes = parse_list(next());
+      else if (a == "--mesh")
+        mesh_path = next();
+      else if (a == "--no-mesh")
+        use_mesh = false;
+      else if (a == "--spikes")
+        K = std::stoi(next());
+      else {
+        std::cerr << "unknown argument " << a << "\n";
+        return 2;
+      }
+    } catch (const std::exception&) {  // std::stoi / std::stoll on a value that is no number
+      std::cerr << a << ": \"" << argv[i] << "\" is not a number\n";
+      return 2;
+    }
+    if (reps < 1 || K < 1 || max_s_nnz < 1 ||
+        boxes.end() != std::find_if(boxes.begin(), boxes.end(), [](int k) { return k < 1; })) {
+      std::cerr << a << ": values must be >= 1\n";
       return 2;
     }
   }
