@@ -245,6 +245,188 @@ struct as_energies<Energies<T...>> {
 ///   if (r.status == StepStatus::NonFinite) throw std::runtime_error(r.message);
 /// }
 /// \endcode
+/// \brief The `pd` method: the paper's local-global iteration with Anderson acceleration
+/// (Algorithm 1 lines 11-32), the eq. (22) gate or the gradient test, and contact (the only
+/// method that carries it: per step, detection and the Delassus operator on A's factor, an NCP
+/// solve after each global step, a re-detection pass when a contact was missed). It works on
+/// the Solver's own parts (local step, A's factor, Dirichlet values, contact model), which is
+/// why it is a friend of Solver; it holds the Anderson mixer.
+template <class Backend_>
+class PdIteration {
+ public:
+  static constexpr SolverMethod kMethod = SolverMethod::PD;
+  void reset() {}
+
+  /// The paper's local-global iteration with Anderson (Algorithm 1 lines 11-32) and contact,
+  /// from the first iterate q. Returns false (rep filled by s.fail()) on a non-finite value.
+  template <class S>
+  bool minimise(S& s, PdPotential<S>& potential, typename S::Vector& q,
+                const typename S::Vector& q_t, const typename S::Vector& qtil, StepReport& rep,
+                typename S::Vector& q_prev, std::chrono::steady_clock::time_point t_start) {
+    using Vector = typename S::Vector;
+    using Backend = typename S::backend_type;
+    constexpr int Dim = S::kDim;
+    const Index n = s.nv_ * Dim;
+    const double t1 = s.t_ + s.options_.h;
+    const Vector& rhs0 = potential.rhs0();
+    Vector b(n), b_prev, qhat, qnext, grad;
+    Index bad = -1;
+    GradientTest test = s.gradient_test();
+    const bool gradient_gate = s.options_.gate_scale == GateScale::Gradient;
+    if constexpr (S::kHasContact) {
+      // Contacts of the step (Algorithm 1 lines 8-10): detected between q_t and the inertial
+      // prediction, frames frozen; W and the columns A^-1 j_r on the current factor.
+      s.contact_active_ = s.contact_.enabled();
+      if (s.contact_active_) {
+        s.fully_fixed_.assign(s.nv_, 0);
+        for (Index v = 0; v < s.nv_; ++v) s.fully_fixed_[v] = s.mask_.row(v).all() ? 1 : 0;
+        VertexMatrix<Dim> qpred(s.nv_, Dim);
+        Eigen::Map<Vector>(qpred.data(), n) = qtil;
+        for (Index v = 0; v < s.nv_; ++v)
+          if (s.mask_.row(v).any())
+            for (int k = 0; k < Dim; ++k)
+              if (s.mask_(v, k)) qpred(v, k) = s.xfix_[Dim * v + k];
+        s.contact_.begin_step(s.mesh_, s.system_, s.fully_fixed_, s.positions_, qpred, s.t_, t1);
+      }
+    }
+    int total_iterations = 0;
+    for (int pass = 0;; ++pass) {
+      mixer_ = AndersonMixer<Backend>(s.window_, s.options_.anderson_tikhonov,
+                                      s.options_.anderson_reset);
+      DualGate gate(s.options_.eps_rel, s.options_.eps_abs);
+      q_prev.resize(0);
+      for (int i = 0;; ++i) {
+        // Local step at q^i and b(q^i), eq. (11).
+        Index bad_element = -1;
+        if (!s.local_step(q, b, &bad_element)) {
+          std::ostringstream os;
+          os << "iteration " << i << ": non-finite local projection at element " << bad_element;
+          {
+            s.fail(rep, t_start, os.str(), mixer_.resets());
+            return false;
+          }
+        }
+        Backend::axpy(1.0, rhs0, b);
+        if (i >= 1 && !gradient_gate) {
+          // Dual gate, eq. (22), for the increment q^i - q^{i-1} (paper's k = i - 1).
+          const bool paper = s.options_.gate_scale == GateScale::Paper;
+          const bool fire =
+              gate.test(i - 1, Backend::distance(q, q_prev),
+                        paper ? Backend::norm(q_prev) : Backend::distance(q_prev, q_t),
+                        Backend::distance(b, b_prev),
+                        paper ? Backend::norm(b_prev) : Backend::distance(b_prev, rhs0));
+          rep.primal_ratio = gate.primal_ratio();
+          rep.dual_ratio = gate.dual_ratio();
+          if (fire) {
+            rep.status = StepStatus::Converged;
+            rep.converged = true;
+            break;
+          }
+        }
+        if (total_iterations + i >= s.options_.max_iterations) {
+          rep.status = StepStatus::MaxIterations;
+          std::ostringstream os;
+          os << "not converged after " << i << " iterations (";
+          if (gradient_gate)
+            os << "gradient ratio " << rep.gradient_ratio << ")";
+          else
+            os << "primal ratio " << rep.primal_ratio << ", dual ratio " << rep.dual_ratio << ")";
+          rep.message = os.str();
+          break;
+        }
+        // Global step.
+        Backend::template apply_inverse<Dim>(s.system_, b, s.xfix_, qhat);
+        if (!Backend::all_finite(qhat, &bad)) {
+          std::ostringstream os;
+          os << "iteration " << i << ": non-finite global solve at vertex " << bad / Dim;
+          {
+            s.fail(rep, t_start, os.str(), mixer_.resets());
+            return false;
+          }
+        }
+        // Contact (Algorithm 1 lines 15-19): q^ = A^-1 b + sum_r a_r lambda_r.
+        if constexpr (S::kHasContact)
+          if (s.contact_active_) {
+            s.contact_.project(qhat);
+            if (!Backend::all_finite(qhat, &bad)) {
+              std::ostringstream os;
+              os << "iteration " << i << ": non-finite contact solve at vertex " << bad / Dim;
+              s.fail(rep, t_start, os.str(), mixer_.resets());
+              return false;
+            }
+          }
+        // Gradient test at q^i: A (q^i - T(q^i)) = A q^i - b(q^i) - J^T lambda, the gradient of
+        // Phi (with the contact forces of the step's NCP when contact is active).
+        if (gradient_gate) {
+          potential.apply_A(q - qhat, grad);
+          potential.mask(grad);
+          const double gn = Backend::norm(grad);
+          if (i == 0 && pass == 0) test.f0 = gn;
+          rep.gradient_ratio = test.ratio(gn);
+          if (test.passed(gn)) {
+            rep.status = StepStatus::Converged;
+            rep.converged = true;
+            rep.iterations = total_iterations + i + 1;
+            if (q_prev.size() == 0) q_prev = q;
+            break;
+          }
+        }
+        // Anderson, eqs. (18)-(21), then Dirichlet.
+        mixer_.mix(q, qhat, qnext);
+        s.impose(qnext);
+        if (!Backend::all_finite(qnext, &bad)) {
+          std::ostringstream os;
+          os << "iteration " << i << ": non-finite Anderson iterate at vertex " << bad / Dim;
+          {
+            s.fail(rep, t_start, os.str(), mixer_.resets());
+            return false;
+          }
+        }
+        std::swap(q_prev, q);
+        std::swap(q, qnext);
+        std::swap(b_prev, b);
+        if (b.size() != n) b.resize(n);
+        rep.iterations = total_iterations + i + 1;
+      }
+      total_iterations = rep.iterations;
+      rep.aa_resets += mixer_.resets();
+      if constexpr (S::kHasContact) {
+        if (s.contact_active_) {
+          // A converged step with contact rows ends on T(q) = global + contact solve from the
+          // converged iterate (b is b(q): the local step of the gate's iteration), not on the
+          // Anderson extrapolation itself: the accepted state then satisfies the contact
+          // conditions to the NCP tolerance (the extrapolation alone left 1e-5 m of
+          // complementarity on one napkin step). One global solve and one NCP solve per step.
+          if (rep.status == StepStatus::Converged && s.contact_.active()) {
+            Backend::template apply_inverse<Dim>(s.system_, b, s.xfix_, qhat);
+            s.contact_.project(qhat);
+            s.impose(qhat);
+            if (Backend::all_finite(qhat, &bad)) std::swap(q, qhat);
+          }
+          VertexMatrix<Dim> qm(s.nv_, Dim);
+          Eigen::Map<Vector>(qm.data(), n) = q;
+          const auto pen = s.contact_.finish_step(q, qm);
+          // A contact missed by the detection at the start of the step: add it and iterate again
+          // from the converged state (the step's other contacts keep their warm starts).
+          if (rep.status == StepStatus::Converged &&
+              pen.depth > s.contact_.options.penetration_tolerance &&
+              pass < s.contact_.options.max_redetections && s.contact_.redetect(qm) > 0) {
+            rep.status = StepStatus::MaxIterations;
+            rep.converged = false;
+            continue;
+          }
+          rep.contact = s.contact_.stats();
+        }
+      }
+      break;
+    }
+    return true;
+  }
+
+ private:
+  AndersonMixer<Backend_> mixer_;
+};
+
 template <int Dim, class Energy, class Contact = NoContact, class Backend = CpuBackend>
 class Solver {
   static_assert(Dim == 2 || Dim == 3, "Solver<Dim, ...>: Dim must be 2 (triangles) or 3 (tets)");
@@ -660,156 +842,11 @@ class Solver {
     return rep;
   }
 
-  /// The paper's local-global iteration with Anderson (Algorithm 1 lines 11-32) and contact,
-  /// from the first iterate q. Returns false (rep filled by fail()) on a non-finite value.
+  /// The paper's local-global iteration with Anderson and contact (PdIteration::minimise).
   bool iterate_pd(PdPotential<Solver>& potential, Vector& q, const Vector& q_t,
                   const Vector& qtil, StepReport& rep, Vector& q_prev,
                   std::chrono::steady_clock::time_point t_start) {
-    const Index n = nv_ * Dim;
-    const double t1 = t_ + options_.h;
-    const Vector& rhs0 = potential.rhs0();
-    Vector b(n), b_prev, qhat, qnext, grad;
-    Index bad = -1;
-    GradientTest test = gradient_test();
-    const bool gradient_gate = options_.gate_scale == GateScale::Gradient;
-    if constexpr (kHasContact) {
-      // Contacts of the step (Algorithm 1 lines 8-10): detected between q_t and the inertial
-      // prediction, frames frozen; W and the columns A^-1 j_r on the current factor.
-      contact_active_ = contact_.enabled();
-      if (contact_active_) {
-        fully_fixed_.assign(nv_, 0);
-        for (Index v = 0; v < nv_; ++v) fully_fixed_[v] = mask_.row(v).all() ? 1 : 0;
-        VertexMatrix<Dim> qpred(nv_, Dim);
-        Eigen::Map<Vector>(qpred.data(), n) = qtil;
-        for (Index v = 0; v < nv_; ++v)
-          if (mask_.row(v).any())
-            for (int k = 0; k < Dim; ++k)
-              if (mask_(v, k)) qpred(v, k) = xfix_[Dim * v + k];
-        contact_.begin_step(mesh_, system_, fully_fixed_, positions_, qpred, t_, t1);
-      }
-    }
-    int total_iterations = 0;
-    for (int pass = 0;; ++pass) {
-    mixer_ = AndersonMixer<Backend>(window_, options_.anderson_tikhonov, options_.anderson_reset);
-    DualGate gate(options_.eps_rel, options_.eps_abs);
-    q_prev.resize(0);
-    for (int i = 0;; ++i) {
-      // Local step at q^i and b(q^i), eq. (11).
-      Index bad_element = -1;
-      if (!local_step(q, b, &bad_element)) {
-        std::ostringstream os;
-        os << "iteration " << i << ": non-finite local projection at element " << bad_element;
-        { fail(rep, t_start, os.str(), mixer_.resets()); return false; }
-      }
-      Backend::axpy(1.0, rhs0, b);
-      if (i >= 1 && !gradient_gate) {
-        // Dual gate, eq. (22), for the increment q^i - q^{i-1} (paper's k = i - 1).
-        const bool paper = options_.gate_scale == GateScale::Paper;
-        const bool fire =
-            gate.test(i - 1, Backend::distance(q, q_prev),
-                      paper ? Backend::norm(q_prev) : Backend::distance(q_prev, q_t),
-                      Backend::distance(b, b_prev),
-                      paper ? Backend::norm(b_prev) : Backend::distance(b_prev, rhs0));
-        rep.primal_ratio = gate.primal_ratio();
-        rep.dual_ratio = gate.dual_ratio();
-        if (fire) {
-          rep.status = StepStatus::Converged;
-          rep.converged = true;
-          break;
-        }
-      }
-      if (total_iterations + i >= options_.max_iterations) {
-        rep.status = StepStatus::MaxIterations;
-        std::ostringstream os;
-        os << "not converged after " << i << " iterations (";
-        if (gradient_gate)
-          os << "gradient ratio " << rep.gradient_ratio << ")";
-        else
-          os << "primal ratio " << rep.primal_ratio << ", dual ratio " << rep.dual_ratio << ")";
-        rep.message = os.str();
-        break;
-      }
-      // Global step.
-      Backend::template apply_inverse<Dim>(system_, b, xfix_, qhat);
-      if (!Backend::all_finite(qhat, &bad)) {
-        std::ostringstream os;
-        os << "iteration " << i << ": non-finite global solve at vertex " << bad / Dim;
-        { fail(rep, t_start, os.str(), mixer_.resets()); return false; }
-      }
-      // Contact (Algorithm 1 lines 15-19): q^ = A^-1 b + sum_r a_r lambda_r.
-      if constexpr (kHasContact)
-        if (contact_active_) {
-          contact_.project(qhat);
-          if (!Backend::all_finite(qhat, &bad)) {
-            std::ostringstream os;
-            os << "iteration " << i << ": non-finite contact solve at vertex " << bad / Dim;
-            fail(rep, t_start, os.str(), mixer_.resets());
-            return false;
-          }
-        }
-      // Gradient test at q^i: A (q^i - T(q^i)) = A q^i - b(q^i) - J^T lambda, the gradient of
-      // Phi (with the contact forces of the step's NCP when contact is active).
-      if (gradient_gate) {
-        potential.apply_A(q - qhat, grad);
-        potential.mask(grad);
-        const double gn = Backend::norm(grad);
-        if (i == 0 && pass == 0) test.f0 = gn;
-        rep.gradient_ratio = test.ratio(gn);
-        if (test.passed(gn)) {
-          rep.status = StepStatus::Converged;
-          rep.converged = true;
-          rep.iterations = total_iterations + i + 1;
-          if (q_prev.size() == 0) q_prev = q;
-          break;
-        }
-      }
-      // Anderson, eqs. (18)-(21), then Dirichlet.
-      mixer_.mix(q, qhat, qnext);
-      impose(qnext);
-      if (!Backend::all_finite(qnext, &bad)) {
-        std::ostringstream os;
-        os << "iteration " << i << ": non-finite Anderson iterate at vertex " << bad / Dim;
-        { fail(rep, t_start, os.str(), mixer_.resets()); return false; }
-      }
-      std::swap(q_prev, q);
-      std::swap(q, qnext);
-      std::swap(b_prev, b);
-      if (b.size() != n) b.resize(n);
-      rep.iterations = total_iterations + i + 1;
-    }
-    total_iterations = rep.iterations;
-    rep.aa_resets += mixer_.resets();
-    if constexpr (kHasContact) {
-      if (contact_active_) {
-        // A converged step with contact rows ends on T(q) = global + contact solve from the
-        // converged iterate (b is b(q): the local step of the gate's iteration), not on the
-        // Anderson extrapolation itself: the accepted state then satisfies the contact
-        // conditions to the NCP tolerance (the extrapolation alone left 1e-5 m of
-        // complementarity on one napkin step). One global solve and one NCP solve per step.
-        if (rep.status == StepStatus::Converged && contact_.active()) {
-          Backend::template apply_inverse<Dim>(system_, b, xfix_, qhat);
-          contact_.project(qhat);
-          impose(qhat);
-          if (Backend::all_finite(qhat, &bad)) std::swap(q, qhat);
-        }
-        VertexMatrix<Dim> qm(nv_, Dim);
-        Eigen::Map<Vector>(qm.data(), n) = q;
-        const auto pen = contact_.finish_step(q, qm);
-        // A contact missed by the detection at the start of the step: add it and iterate again
-        // from the converged state (the step's other contacts keep their warm starts).
-        if (rep.status == StepStatus::Converged &&
-            pen.depth > contact_.options.penetration_tolerance &&
-            pass < contact_.options.max_redetections && contact_.redetect(qm) > 0) {
-          rep.status = StepStatus::MaxIterations;
-          rep.converged = false;
-          continue;
-        }
-        rep.contact = contact_.stats();
-      }
-    }
-    break;
-    }
-    return true;
+    return pd_.minimise(*this, potential, q, q_t, qtil, rep, q_prev, t_start);
   }
 
   /// The step's commit: q_{t+h} = q, v_{t+h} = (q - q_t) / h, t += h; q_prev (the iterate
@@ -1116,7 +1153,8 @@ class Solver {
   VertexMatrix<Dim> positions_, velocities_, f_ext_;
   double t_ = 0;
   Vector xfix_, last_iterate_prev_;
-  AndersonMixer<Backend> mixer_;
+  PdIteration<Backend> pd_;  ///< the pd method (holds the Anderson mixer)
+  friend class PdIteration<Backend>;
   std::vector<Index> adj_ptr_, adj_;
   std::vector<double> contrib_;
   std::vector<unsigned char> bad_;
