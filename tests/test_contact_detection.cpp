@@ -697,6 +697,63 @@ TEST_CASE("restitution targets", "[contact][detect]") {
     const auto cs = detect_contacts(m);
     REQUIRE(!cs.empty());
     for (const auto& c : cs) CHECK(c.gap_target == Approx(0.005 + e * h));
+    SECTION("with start velocities: the relative start velocity, not the prediction") {
+      VertexMatrix<3> v0 = VertexMatrix<3>::Zero(p0.rows(), 3);
+      for (Index v = 0; v < v0.rows(); ++v)
+        if (body[v] == 1) v0(v, 1) = -0.5;  // falling at 0.5 m/s at t0; predicted 1 m/s
+      m.v_start = &v0;
+      const auto cv = detect_contacts(m);
+      REQUIRE(cv.size() == cs.size());
+      for (const auto& c : cv) CHECK(c.gap_target == Approx(0.005 + e * 0.5 * h));
+      v0.setZero();  // at rest at t0: no impact, whatever the prediction
+      for (const auto& c : detect_contacts(m)) CHECK(c.gap_target == 0);
+      v0.setConstant(-0.5);  // both blocks falling together: no relative approach
+      for (const auto& c : detect_contacts(m)) CHECK(c.gap_target == 0);
+    }
+  }
+  SECTION("with start velocities (the impact law v+ = -e v-)") {
+    VertexMatrix<3> v0 = VertexMatrix<3>::Zero(q0.rows(), 3);
+    in.v_start = &v0;
+    const double g = 9.81;
+    SECTION("a body at rest under gravity does not bounce") {
+      // Resting 0.5 mm above the ground: the prediction, q0 - g h^2, crosses it at g h = 0.098
+      // m/s, above the 0.05 m/s threshold; without v_start that is a bounce at every step.
+      const VertexMatrix<3> r0 = shifted<3>(q0, up<3>(-0.0025));
+      const VertexMatrix<3> r1 = shifted<3>(r0, up<3>(-g * h * h));
+      in.q_start = &r0;
+      in.q_pred = &r1;
+      const auto cs = detect_contacts(in);
+      REQUIRE(!cs.empty());
+      for (const auto& c : cs) CHECK(c.gap_target == 0);
+      in.v_start = nullptr;
+      for (const auto& c : detect_contacts(in))
+        CHECK(c.gap_target == Approx(0.0005 + e * g * h * h));
+    }
+    SECTION("a falling body bounces with e times its start speed") {
+      v0.col(1).setConstant(-1.0);
+      const VertexMatrix<3> q1 = shifted<3>(q0, up<3>(-1.0 * h - g * h * h));
+      in.q_pred = &q1;
+      const auto cs = detect_contacts(in);
+      REQUIRE(!cs.empty());
+      for (const auto& c : cs) CHECK(c.gap_target == Approx(0.003 + e * 1.0 * h));
+    }
+    SECTION("a rising floor against a body at rest: the floor's velocity") {
+      std::vector<Collider<3>> moving{ground<3>(e)};
+      moving[0].velocity = up<3>(1.0);
+      moving[0].point = up<3>(-1.0);
+      in.colliders = &moving;
+      in.q_pred = &q0;
+      const auto cs = detect_contacts(in);
+      REQUIRE(!cs.empty());
+      for (const auto& c : cs) CHECK(c.gap_target == Approx(0.003 + e * h));
+    }
+    SECTION("v_start of the wrong size is rejected") {
+      const VertexMatrix<3> bad = VertexMatrix<3>::Zero(q0.rows() + 1, 3);
+      in.v_start = &bad;
+      const VertexMatrix<3> q1 = shifted<3>(q0, up<3>(-1.0 * h));
+      in.q_pred = &q1;
+      CHECK_THROWS_WITH(detect_contacts(in), Catch::Contains("v_start has"));
+    }
   }
 }
 

@@ -201,6 +201,11 @@ struct DetectionInput {
   const std::vector<int>* vertex_body = nullptr;
   const VertexMatrix<Dim>* q_start = nullptr;             ///< required: positions at t0
   const VertexMatrix<Dim>* q_pred = nullptr;              ///< required: predicted positions at t1
+  /// Optional: velocities at t0 (Dirichlet vertices: their prescribed motion over the step).
+  /// When given, restitution's approach is the start velocity's (the impact law v+ = -e v-);
+  /// nullptr: the prediction's, which includes this step's gravity and forces, so that a body
+  /// resting under gravity "approaches" at g h and bounces on every step.
+  const VertexMatrix<Dim>* v_start = nullptr;
   double t0 = 0, t1 = 0;                                  ///< the step [t0, t1], t1 >= t0
   const std::vector<Collider<Dim>>* colliders = nullptr;  ///< nullptr: none
   ContactOptions options;
@@ -381,8 +386,9 @@ bool better(const MeshCandidate<Dim>& a, const MeshCandidate<Dim>& b) {
 /// Restitution (e = collider restitution, or options.mesh_restitution for mesh contacts, > 0):
 /// with d0 = the gap at the start of the step relative to the surface there (delta_n(q_start),
 /// plus n . collider_displacement for a collider: the collider at t0) and dp = delta_n(q_pred),
-/// the relative normal speed is v_n = (dp - d0) / h, h = t1 - t0. If dp < 0 and
-/// -v_n > options.restitution_threshold, gap_target = max(0, d0) + e (-v_n) h, else 0.
+/// the relative normal speed v_n is n . (v_c - collider_displacement / h) with v_c the stencil
+/// point's start velocity (from v_start), or (dp - d0) / h, h = t1 - t0, without v_start. If
+/// dp < 0 and -v_n > options.restitution_threshold, gap_target = max(0, d0) + e (-v_n) h, else 0.
 ///
 /// Vertices are processed in parallel (OpenMP) for large inputs; the output does not depend on
 /// the number of threads.
@@ -411,12 +417,20 @@ std::vector<ContactPoint<Dim>> detect_contacts(const DetectionInput<Dim>& in) {
   static const std::vector<Collider<Dim>> kNone;
   const std::vector<Collider<Dim>>& colliders = in.colliders ? *in.colliders : kNone;
 
-  // Restitution target of a contact with start gap d0 and predicted gap dp.
-  auto restitution_target = [&](double e, double d0, double dp) {
+  if (in.v_start)
+    check_inputs<Dim>("detect_contacts", mesh, nullptr, *in.v_start, "v_start", nullptr);
+  // Restitution target of a contact with start gap d0, predicted gap dp and approach
+  // -v_n h (see above).
+  auto restitution_target = [&](double e, double d0, double dp, double approach) {
     if (!(e > 0) || !(h > 0) || !(dp < 0)) return 0.0;
-    const double approach = d0 - dp;  // = -v_n h
     if (!(approach > opt.restitution_threshold * h)) return 0.0;
     return std::max(0.0, d0) + e * approach;
+  };
+  // The stencil point's start velocity (weights w, vertices vs) along n, times h.
+  auto start_motion = [&](const Vec<Dim>& n, const Index* vs, const double* w, int count) {
+    double m = 0;
+    for (int i = 0; i < count; ++i) m += w[i] * n.dot(in.v_start->row(vs[i]).transpose());
+    return m * h;
   };
 
   // Mesh phase only when some facet can touch some vertex.
@@ -463,7 +477,11 @@ std::vector<ContactPoint<Dim>> detect_contacts(const DetectionInput<Dim>& in) {
           cp.collider = static_cast<int>(ci);
           const double g0 = cp.normal.dot(x0) - cp.gap_offset + cp.normal.dot(disp);
           const double gp = q1.distance;
-          cp.gap_target = restitution_target(c.restitution, g0, gp);
+          const double approach =
+              in.v_start ? cp.normal.dot(disp) - start_motion(cp.normal, cp.vertices.data(),
+                                                              cp.weights.data(), cp.count)
+                         : g0 - gp;
+          cp.gap_target = restitution_target(c.restitution, g0, gp, approach);
           out.push_back(cp);
         }
       }
@@ -539,8 +557,12 @@ std::vector<ContactPoint<Dim>> detect_contacts(const DetectionInput<Dim>& in) {
         cp.friction = opt.mesh_friction;
         cp.collider = mc.body == bv ? -2 : -1;
         cp.facet = mc.facet;
-        cp.gap_target =
-            restitution_target(opt.mesh_restitution, cp.normal.dot(xc0), cp.normal.dot(xc1));
+        const double d0 = cp.normal.dot(xc0), dp = cp.normal.dot(xc1);
+        const double approach =
+            in.v_start
+                ? -start_motion(cp.normal, cp.vertices.data(), cp.weights.data(), cp.count)
+                : d0 - dp;
+        cp.gap_target = restitution_target(opt.mesh_restitution, d0, dp, approach);
         out.push_back(cp);
       }
     }

@@ -50,10 +50,12 @@ class NcpContact {
   const ContactStepStats& stats() const { return stats_; }
 
   /// Start of a step: detect the contacts between q_start (time t0) and the prediction q_pred
-  /// (time t1) and build W on the system's current factor.
+  /// (time t1) and build W on the system's current factor. v_start (optional, the velocities at
+  /// t0): restitution's approach speed (DetectionInput::v_start); the Solver passes it.
   void begin_step(const SimplicialMesh<Dim>& mesh, const PDSystem<Dim>& sys,
                   const std::vector<char>& fully_fixed, const VertexMatrix<Dim>& q_start,
-                  const VertexMatrix<Dim>& q_pred, double t0, double t1) {
+                  const VertexMatrix<Dim>& q_pred, double t0, double t1,
+                  const VertexMatrix<Dim>* v_start = nullptr) {
     stats_ = ContactStepStats{};
     options.validate();
     for (size_t i = 0; i < colliders.size(); ++i) colliders[i].validate(static_cast<int>(i));
@@ -61,6 +63,8 @@ class NcpContact {
     sys_ = &sys;
     fully_fixed_ = &fully_fixed;
     q_start_ = q_start;
+    has_v_start_ = v_start != nullptr;
+    if (v_start) v_start_ = *v_start;
     t0_ = t0;
     t1_ = t1;
     points_.clear();
@@ -172,6 +176,7 @@ class NcpContact {
     in.vertex_body = vertex_body_ptr();
     in.q_start = &q_start_;
     in.q_pred = &q_pred;
+    in.v_start = has_v_start_ ? &v_start_ : nullptr;
     in.t0 = t0_;
     in.t1 = t1_;
     in.colliders = &colliders;
@@ -219,6 +224,8 @@ class NcpContact {
   const PDSystem<Dim>* sys_ = nullptr;
   const std::vector<char>* fully_fixed_ = nullptr;
   VertexMatrix<Dim> q_start_;
+  VertexMatrix<Dim> v_start_;  // velocities at t0 (restitution), when has_v_start_
+  bool has_v_start_ = false;
   double t0_ = 0, t1_ = 0;
   std::vector<ContactPoint<Dim>> points_;
   VectorX offsets_, lambda_;

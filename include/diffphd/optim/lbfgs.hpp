@@ -133,15 +133,18 @@ class CountingObjective {
     grad.setZero(x.size());
     double loss = 0, seconds = 0;
     const bool replayed = static_cast<std::size_t>(index) < options_.replay.size();
-    const auto t0 = std::chrono::steady_clock::now();
     try {
-      loss = replayed ? replay(index, x, grad, seconds) : f_(x, grad);
+      if (replayed) {
+        loss = replay(index, x, grad, seconds);  // the logged time, no clock read
+      } else {
+        const auto t0 = std::chrono::steady_clock::now();
+        loss = f_(x, grad);
+        seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      }
     } catch (...) {
       pending = std::current_exception();
       throw StopMinimize{};
     }
-    if (!replayed)
-      seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     ++result_.evaluations;
     if (grad.size() != x.size()) {
       std::ostringstream os;

@@ -286,7 +286,14 @@ class PdIteration {
           if (s.mask_.row(v).any())
             for (int k = 0; k < Dim; ++k)
               if (s.mask_(v, k)) qpred(v, k) = s.xfix_[Dim * v + k];
-        s.contact_.begin_step(s.mesh_, s.system_, s.fully_fixed_, s.positions_, qpred, s.t_, t1);
+        // Start velocities for restitution's approach speed; a Dirichlet DoF moves as
+        // prescribed over this step.
+        VertexMatrix<Dim> vstart = s.velocities_;
+        for (Index v = 0; v < s.nv_; ++v)
+          for (int k = 0; k < Dim; ++k)
+            if (s.mask_(v, k)) vstart(v, k) = (qpred(v, k) - s.positions_(v, k)) / s.options_.h;
+        s.contact_.begin_step(s.mesh_, s.system_, s.fully_fixed_, s.positions_, qpred, s.t_, t1,
+                              &vstart);
       }
     }
     int total_iterations = 0;
