@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The soak (not part of the default suite; 30-40 minutes on 2 cores, most of it ball_drop):
-# 10^4 steps of the demo and of a contact scene (ball_drop), and the adjoint gradient of a
-# 1000-step demo rollout.
+# The soak (not part of the default suite; about 5 minutes of one core once built, most of it
+# ball_drop): 10^4 steps of the demo and of two contact scenes (ball_drop: bounces then rest;
+# incline_block: sticking friction), and the adjoint gradient of a 1000-step demo rollout.
 # Each run checks that no step fails or stops unconverged, that resident memory stays flat after
 # the warm-up, that the energy of the undamped body never rises, and that the gradient is finite
 # (bench/soak.cpp). One JSON line per run goes to OUT (default out/soak/); exit status 1 when any
@@ -30,5 +30,6 @@ run() {
 }
 run demo_forward forward scenes/demo.json --steps "$steps"
 run ball_drop_forward forward scenes/ball_drop.json --steps "$steps"
+run incline_block_forward forward scenes/incline_block.json --steps "$steps"
 run demo_gradient gradient scenes/demo.json --steps "$gsteps"
 exit $status
