@@ -28,6 +28,7 @@
 #include <diffphd/io/io.hpp>
 #include <diffphd/io/vtk.hpp>
 #include <diffphd/io/scene.hpp>
+#include <diffphd/linalg/blas_threads.hpp>
 
 #include "adjoint_cli.hpp"
 #include "bench.hpp"
@@ -186,6 +187,10 @@ int main(int argc, char** argv) {
   // loops on 2 loaded cores (measured: the demo's Newton-Krylov steps 2.7x slower). The element
   // loops keep their OpenMP parallelism.
   Eigen::setNbThreads(1);
+  // OpenBLAS's own threads (CHOLMOD's supernodal kernels) spin against the element loops too:
+  // ball_drop's steps took 3x longer with OpenBLAS's default thread count (blas_threads.hpp).
+  // OPENBLAS_NUM_THREADS / GOTO_NUM_THREADS, when set, win.
+  if (!diffphd::blas_threads_from_environment()) diffphd::set_blas_threads(1);
   CLI::App app{"diffphd: differentiable projective dynamics for heterogeneous soft bodies"};
   app.set_version_flag("--version", std::string("diffphd ") + diffphd::version());
   app.require_subcommand(1);

@@ -2,6 +2,7 @@
 #include "run_output.hpp"
 
 #include <fcntl.h>
+#include <omp.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -13,6 +14,7 @@
 #include <sstream>
 
 #include <diffphd/io/atomic_file.hpp>
+#include <diffphd/linalg/blas_threads.hpp>
 #include <diffphd/solver/checkpoint.hpp>
 
 #include "file_bytes.hpp"
@@ -165,6 +167,8 @@ json run_summary(json j, const RunTotals& t, bool contact, const std::string& fa
     j["redetections"] = t.redetections;
     j["ncp_unconverged_iterations"] = t.ncp_unconverged;
   }
+  j["blas_threads"] = blas_threads();  // -1: the BLAS is not OpenBLAS
+  j["openmp_threads"] = omp_get_max_threads();
   j["status"] = failure.empty() ? "ok" : "non-finite";
   if (!failure.empty()) j["error"] = failure;
   return j;

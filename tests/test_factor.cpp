@@ -5,12 +5,15 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
+#include <string>
 #include <vector>
 
 #include <Eigen/Dense>
 
 #include <diffphd/core/material.hpp>
 #include <diffphd/core/mesh.hpp>
+#include <diffphd/linalg/blas_threads.hpp>
 #include <diffphd/linalg/ordering.hpp>
 #include <diffphd/linalg/pd_matrix.hpp>
 #include <diffphd/linalg/sparse_factor.hpp>
@@ -174,4 +177,42 @@ TEST_CASE("SparseFactor::nnz_L is known after the symbolic analysis alone", "[li
     REQUIRE(f.info() == FactorStatus::Success);
     CHECK(f.nnz_L() == symbolic);
   }
+}
+
+TEST_CASE("blas_threads: OpenBLAS's thread count is read and set at run time", "[linalg][blas]") {
+  // The factor pulls in CHOLMOD and its BLAS; on Debian that is OpenBLAS (scripts/install-deps.sh).
+  const int before = diffphd::blas_threads();
+  if (before == -1) {
+    WARN("skipping: the BLAS in this process is not OpenBLAS (no openblas_get_num_threads)");
+    CHECK_FALSE(diffphd::set_blas_threads(1));
+    return;
+  }
+  REQUIRE(before >= 1);
+  REQUIRE(diffphd::set_blas_threads(1));
+  CHECK(diffphd::blas_threads() == 1);
+  REQUIRE(diffphd::set_blas_threads(2));
+  CHECK(diffphd::blas_threads() == 2);
+  CHECK_FALSE(diffphd::set_blas_threads(0));  // refused, count unchanged
+  CHECK(diffphd::blas_threads() == 2);
+  diffphd::set_blas_threads(before);
+  CHECK(diffphd::blas_threads() == before);
+
+  // The environment: OPENBLAS_NUM_THREADS or GOTO_NUM_THREADS, non-empty, is a choice.
+  const char* saved = std::getenv("OPENBLAS_NUM_THREADS");
+  const std::string saved_value = saved ? saved : "";
+  const char* saved_goto = std::getenv("GOTO_NUM_THREADS");
+  const std::string saved_goto_value = saved_goto ? saved_goto : "";
+  unsetenv("OPENBLAS_NUM_THREADS");
+  unsetenv("GOTO_NUM_THREADS");
+  CHECK_FALSE(diffphd::blas_threads_from_environment());
+  setenv("OPENBLAS_NUM_THREADS", "", 1);
+  CHECK_FALSE(diffphd::blas_threads_from_environment());
+  setenv("OPENBLAS_NUM_THREADS", "1", 1);
+  CHECK(diffphd::blas_threads_from_environment());
+  unsetenv("OPENBLAS_NUM_THREADS");
+  setenv("GOTO_NUM_THREADS", "3", 1);
+  CHECK(diffphd::blas_threads_from_environment());
+  unsetenv("GOTO_NUM_THREADS");
+  if (saved) setenv("OPENBLAS_NUM_THREADS", saved_value.c_str(), 1);
+  if (saved_goto) setenv("GOTO_NUM_THREADS", saved_goto_value.c_str(), 1);
 }

@@ -12,5 +12,6 @@
 #include "core/mesh.hpp"
 #include "core/types.hpp"
 #include "io/io.hpp"
+#include "linalg/blas_threads.hpp"
 #include "linalg/linalg.hpp"
 #include "version.hpp"
