@@ -22,6 +22,7 @@
 #include <type_traits>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <iostream>
 #include <sstream>
@@ -41,14 +42,16 @@ using json = nlohmann::json;
 
 namespace {
 
-/// Resident set size of this process in KiB (VmRSS of /proc/self/status), 0 when unknown.
-long resident_kib() {
+/// A field of /proc/self/status in KiB ("VmRSS:" resident now, "VmHWM:" the peak), 0 when
+/// unknown.
+long status_kib(const char* field) {
   std::ifstream in("/proc/self/status");
   std::string line;
   while (std::getline(in, line))
-    if (line.rfind("VmRSS:", 0) == 0) return std::atol(line.c_str() + 6);
+    if (line.rfind(field, 0) == 0) return std::atol(line.c_str() + std::strlen(field));
   return 0;
 }
+long resident_kib() { return status_kib("VmRSS:"); }
 
 /// Kinetic + PD elastic + gravitational potential energy (J) of the solver's current state.
 template <class S>
@@ -133,6 +136,7 @@ json forward(const io::SceneSpec& scene, int steps, bool trace) {
             {"energy_max_step_rise_after_warmup", step_rise_late},
             {"energy_bounded", energy_bounded},
             {"seconds", diffphd::detail::seconds_since(t0)}};
+  j["peak_rss_kib"] = status_kib("VmHWM:");  // the process's peak, warm-up included
   j["ok"] = failed == 0 && unconverged == 0 && rss_flat && energy_bounded;
   return j;
 }
@@ -167,6 +171,7 @@ json gradient(const io::SceneSpec& scene, int steps) {
             {"unconverged_adjoints", g.unconverged_adjoints},
             {"finite", finite},
             {"seconds", diffphd::detail::seconds_since(t0)}};
+  j["peak_rss_kib"] = status_kib("VmHWM:");
   j["ok"] = finite && g.unconverged_steps == 0 && g.unconverged_adjoints == 0;
   return j;
 }

@@ -3,6 +3,7 @@
 
 #include <fcntl.h>
 #include <omp.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -169,6 +170,10 @@ json run_summary(json j, const RunTotals& t, bool contact, const std::string& fa
   }
   j["blas_threads"] = blas_threads();  // -1: the BLAS is not OpenBLAS
   j["openmp_threads"] = omp_get_max_threads();
+  // Peak resident memory of this process so far (getrusage; Linux reports KiB). A resumed run
+  // reports its own process only.
+  rusage ru{};
+  j["peak_rss_kib"] = getrusage(RUSAGE_SELF, &ru) == 0 ? static_cast<long>(ru.ru_maxrss) : -1L;
   j["status"] = failure.empty() ? "ok" : "non-finite";
   if (!failure.empty()) j["error"] = failure;
   return j;

@@ -453,3 +453,34 @@ TEST_CASE("NCP: a bilateral attachment is an equality with a free multiplier", "
   CHECK((y0 + W * l).norm() <= 1e-14);
   CHECK(l[0] < 0);  // a pull (negative normal force) is allowed
 }
+
+TEMPLATE_TEST_CASE_SIG("NCP: rows far beyond metres converge to their rounding floor, scaled",
+                       "[contact][ncp]", ((int Dim), Dim), 2, 3) {
+  // The NCP is positively homogeneous: y0 -> s y0 gives lambda -> s lambda. At s = 1e50 the
+  // absolute 1e-14 m tolerance is below phi's rounding (ulps of 1e47 m); the solve stops at its
+  // rounding floor with the scaled solution. (These random problems often reach phi = 0 exactly
+  // even without the floor; the stall it prevents is shown on a fuzzed scene in
+  // test_contact_bodies.)
+  for (const double mu : {0.0, 0.5}) {
+    auto P = random_problem<Dim>(10, mu, 7);
+    VectorX l1;
+    NcpSolver<Dim> s;
+    const NcpReport r1 = s.solve(P.pts, P.W, P.y0, l1, 1e-14, 60);
+    INFO("mu " << mu << ": unit rows " << r1.iterations << " iterations, residual "
+               << r1.residual << ", floor " << r1.rounding_floor);
+    REQUIRE(r1.converged);
+    CHECK(r1.rounding_floor < 1e-16);  // mm rows: the floor is far below the tolerance
+    CHECK(r1.residual <= 1e-14);
+    const double scale = 1e50;
+    const VectorX y0s = scale * P.y0;
+    VectorX ls;
+    const NcpReport rs = s.solve(P.pts, P.W, y0s, ls, 1e-14, 60);
+    INFO("scaled rows: " << rs.iterations << " iterations, residual " << rs.residual
+                         << ", floor " << rs.rounding_floor);
+    REQUIRE(rs.converged);
+    CHECK(rs.residual <= rs.rounding_floor);
+    CHECK(rs.rounding_floor <= 1e-15 * scale);
+    CHECK(rs.iterations <= r1.iterations + 5);
+    CHECK((ls / scale - l1).norm() <= 1e-8 * l1.norm());
+  }
+}

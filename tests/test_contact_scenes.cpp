@@ -124,6 +124,28 @@ TEST_CASE("napkin_sphere_24 as shipped (25 x 25): no penetration at any step",
   CHECK(w.fraction > 0.05);
 }
 
+TEST_CASE("contact rows at 1e52 m: the NCP stops at its rounding floor, not its iteration cap",
+          "[contact][scene]") {
+  // Found by fuzz_simulate: gravity -8.2e72 m/s^2 on the incline block. The absolute
+  // ncp_tolerance (1e-14 m) is far below the rounding of such rows, so without the floor every
+  // PD iteration ran all ncp_max_iterations = 50 Newton iterations with a dense LU on 56 sliding
+  // contacts (500 NCP iterations a step, 0.8 s Release, 28 s under ASan).
+  const io::SceneSpec scene = io::load_scene(std::string(DIFFPHD_SOURCE_DIR) +
+                                             "/tests/data/scenes/fuzz_huge_gravity.json");
+  ContactScene sim(scene);
+  for (int s = 0; s < 2; ++s) {
+    const StepReport r = sim.step();
+    const auto& c = r.contact;
+    INFO("step " << s << ": " << r.iterations << " PD iterations, " << c.points << " points, "
+                 << c.ncp_iterations << " NCP iterations, " << c.ncp_unconverged
+                 << " at the cap, " << r.message);
+    REQUIRE(c.points > 0);
+    CHECK(c.ncp_unconverged == 0);
+    CHECK(c.ncp_iterations <= 10 * r.iterations);
+    CHECK(sim.solver().positions().allFinite());
+  }
+}
+
 TEST_CASE("a contact scene on a contact-free SceneSimulation is an error, not a silent run",
           "[contact][scene]") {
   const io::SceneSpec scene = io::load_scene(kScenes + "ball_drop.json");

@@ -5,9 +5,11 @@
 // gradient test's independence of where the body is.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <numeric>
 #include <random>
 #include <vector>
 
@@ -370,6 +372,41 @@ TEST_CASE("HessianAssembler gives assemble_projected_hessian's matrix", "[method
   check_assembler<3, CoroVol>(1e3, 1.0);
   check_assembler<3, CoroVol>(1.0, 0.7);  // compressed: projected blocks
   check_assembler<2, NH>(1e2, 0.8);
+}
+
+/// matches() compares A's pattern entry by entry: the same mesh with its vertices renumbered
+/// gives an A with as many entries in other places, for which the held slots are wrong.
+TEST_CASE("HessianAssembler::matches tells a renumbered mesh's pattern of equal size apart",
+          "[methods]") {
+  auto s = deformed_solver<3, CoroVol>(10.0, 5);
+  auto P = s.step_potential();
+  const Index n = s.mesh().num_vertices();
+  std::vector<Index> fi;
+  const Index nf = detail::free_numbering(P, Index(3) * n, fi);
+  HessianAssembler fast;
+  CHECK_FALSE(fast.matches(P));  // not built
+  fast.build(P, fi, nf);
+  CHECK(fast.matches(P));
+
+  const auto& m = s.mesh();
+  std::vector<Index> perm(static_cast<size_t>(n));
+  std::iota(perm.begin(), perm.end(), Index(0));
+  std::shuffle(perm.begin(), perm.end(), std::mt19937(3));
+  SimplicialMesh<3>::Positions X(n, 3);
+  SimplicialMesh<3>::Elements T = m.elements();
+  for (Index i = 0; i < n; ++i) X.row(perm[static_cast<size_t>(i)]) = m.rest_positions().row(i);
+  for (Index e = 0; e < T.rows(); ++e)
+    for (Index a = 0; a < T.cols(); ++a) T(e, a) = perm[static_cast<size_t>(T(e, a))];
+  SimplicialMesh<3> renumbered(X, T);
+  MaterialField mats(renumbered.num_elements(), Material{1e5, 0.3, 1000, 0});
+  Solver<3, CoroVol> r(renumbered, mats);
+  auto Pr = r.step_potential();
+  const SparseMatrix& A = s.system().matrix();
+  const SparseMatrix& Ar = r.system().matrix();
+  REQUIRE(A.nonZeros() == Ar.nonZeros());  // the same size...
+  REQUIRE(MatrixX(A).cwiseAbs().cwiseSign() != MatrixX(Ar).cwiseAbs().cwiseSign());  // ...elsewhere
+  CHECK_FALSE(fast.matches(Pr));
+  CHECK(fast.matches(P));
 }
 
 TEST_CASE("Deflated PCG is exact on rigid motions of a stiff region", "[methods]") {

@@ -802,15 +802,36 @@ class HessianAssembler {
       Index* out = e_slot_.data() + static_cast<size_t>(e) * N * N;
       each_e(e, [&](Index r, Index c) { *out++ = slot(r, c); });
     }
-    a_nnz_ = As.nonZeros();
+    a_outer_.assign(static_cast<size_t>(As.outerSize()) + 1, 0);
+    a_inner_.clear();
+    a_inner_.reserve(static_cast<size_t>(As.nonZeros()));
+    for (Index j = 0; j < As.outerSize(); ++j) {
+      for (SparseMatrix::InnerIterator it(As, j); it; ++it) a_inner_.push_back(it.row());
+      a_outer_[static_cast<size_t>(j) + 1] = static_cast<Index>(a_inner_.size());
+    }
+    n_elements_ = mesh.num_elements();
     built_ = true;
   }
   bool built() const { return built_; }
-  /// Built for a matrix A with the pattern size P's Solver holds now (a held assembler whose A
-  /// changed pattern must be built again: assemble() would write into the wrong slots).
+  /// Built for the pattern of the matrix A that P's Solver holds now, entry by entry (O(nnz A)):
+  /// a held assembler whose A changed pattern must be built again, since assemble() writes A's
+  /// entries through slots taken in build(); a pattern of the same size with other entries
+  /// (a renumbered mesh) is a different pattern.
   template <class Potential>
   bool matches(Potential& P) const {
-    return built_ && P.solver().system().matrix().nonZeros() == a_nnz_;
+    if (!built_) return false;
+    const auto& As = P.solver().system().matrix();
+    if (P.solver().mesh().num_elements() != n_elements_ ||
+        static_cast<size_t>(As.outerSize()) + 1 != a_outer_.size() ||
+        static_cast<size_t>(As.nonZeros()) != a_inner_.size())
+      return false;
+    size_t s = 0;
+    for (Index j = 0; j < As.outerSize(); ++j) {
+      if (a_outer_[static_cast<size_t>(j)] != static_cast<Index>(s)) return false;
+      for (SparseMatrix::InnerIterator it(As, j); it; ++it, ++s)
+        if (s >= a_inner_.size() || a_inner_[s] != it.row()) return false;
+    }
+    return s == a_inner_.size();
   }
 
   /// The projected Hessian at the blocks P holds (build() first, with the same free set).
@@ -858,7 +879,8 @@ class HessianAssembler {
  private:
   SparseMatrix H_;
   std::vector<Index> a_slot_, e_slot_;
-  Index a_nnz_ = 0;
+  std::vector<Index> a_outer_, a_inner_;  // A's pattern at build() (matches())
+  Index n_elements_ = 0;
   bool built_ = false;
 };
 
