@@ -18,6 +18,8 @@
 #include <diffphd/diffphd.hpp>
 #include <diffphd/optim/scene_task.hpp>
 
+#include "bench_args.hpp"
+
 using namespace diffphd;
 
 template <class E>
@@ -42,18 +44,21 @@ int main(int argc, char** argv) {
     return 2;
   }
   try {
-    const int frames = std::atoi(argv[2]);
-    const double contrast = std::atof(argv[3]), tol = std::atof(argv[4]);
+    namespace ba = diffphd::bench_args;
+    constexpr const char* prog = "bench_backward_methods";
+    const int frames = static_cast<int>(ba::integer(prog, "FRAMES", argv[2], 1, 1'000'000));
+    const double contrast = ba::number(prog, "CONTRAST", argv[3], 0, 1e12);
+    const double tol = ba::number(prog, "TOLERANCE", argv[4], 1e-16, 1);
     std::vector<std::pair<AdjointMethod, BackwardOptions>> methods;
     BackwardOptions opt;
     for (int i = 5; i < argc; ++i) {
       const std::string a = argv[i];
       if (a.rfind("stall=", 0) == 0) {
-        opt.pcg_stall_window = std::atoi(a.c_str() + 6);
+        opt.pcg_stall_window = static_cast<int>(ba::integer(prog, "stall=", a.substr(6), 1, 1'000'000));
       } else if (a.rfind("cap=", 0) == 0) {
-        opt.pcg_max_iterations = std::atoi(a.c_str() + 4);
+        opt.pcg_max_iterations = static_cast<int>(ba::integer(prog, "cap=", a.substr(4), 1, 100'000'000));
       } else if (a.rfind("warm=", 0) == 0) {
-        opt.fallback_warm_start = std::atoi(a.c_str() + 5) != 0;
+        opt.fallback_warm_start = ba::integer(prog, "warm=", a.substr(5), 0, 1) != 0;
       } else {
         AdjointMethod m;
         if (!parse_adjoint_method(a, m)) throw InputError("unknown method " + a);

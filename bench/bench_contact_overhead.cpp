@@ -22,6 +22,8 @@
 #include <diffphd/io/generators.hpp>
 #include <diffphd/solver/solver.hpp>
 
+#include "bench_args.hpp"
+
 using namespace diffphd;
 using Pack = Energies<Corotated, Volume>;
 
@@ -50,12 +52,19 @@ std::vector<double> run(Sim& sim, int steps, VertexMatrix<3>* out) {
 
 int main(int argc, char** argv) {
   int cells = 40, steps = 30, reps = 5;
-  for (int i = 1; i + 1 < argc; i += 2) {
-    if (!std::strcmp(argv[i], "--cells")) cells = std::atoi(argv[i + 1]);
-    else if (!std::strcmp(argv[i], "--steps")) steps = std::atoi(argv[i + 1]);
-    else if (!std::strcmp(argv[i], "--reps")) reps = std::atoi(argv[i + 1]);
+  namespace ba = diffphd::bench_args;
+  constexpr const char* prog = "bench_contact_overhead";
+  for (int i = 1; i < argc; ++i) {
+    const std::string_view a = argv[i];
+    if (a == "--cells")
+      cells = static_cast<int>(ba::integer(prog, a, ba::value(prog, argc, argv, i), 1, 1000));
+    else if (a == "--steps")
+      steps = static_cast<int>(ba::integer(prog, a, ba::value(prog, argc, argv, i), 1, 1'000'000));
+    else if (a == "--reps")
+      reps = static_cast<int>(ba::integer(prog, a, ba::value(prog, argc, argv, i), 1, 10'000));
     else {
-      std::fprintf(stderr, "unknown option %s\n", argv[i]);
+      std::fprintf(stderr, "%s: unknown option %s (options: --cells N, --steps N, --reps N)\n", prog,
+                   argv[i]);
       return 2;
     }
   }

@@ -21,6 +21,7 @@
 #include <fstream>
 #include <functional>
 #include <iostream>
+#include <limits>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -34,6 +35,7 @@
 #include <diffphd/linalg/pd_matrix.hpp>
 #include <diffphd/linalg/sparse_factor.hpp>
 
+#include "bench_args.hpp"
 #include "bench_timing.hpp"
 
 #ifndef DIFFPHD_DATA_DIR
@@ -139,14 +141,6 @@ Row run_mesh(const std::string& name, const SimplicialMesh<3>& mesh, int reps, l
   return row;
 }
 
-std::vector<int> parse_list(const std::string& s) {
-  std::vector<int> out;
-  std::stringstream ss(s);
-  std::string tok;
-  while (std::getline(ss, tok, ','))
-    if (!tok.empty()) out.push_back(std::stoi(tok));
-  return out;
-}
 
 }  // namespace
 
@@ -156,41 +150,27 @@ int main(int argc, char** argv) {
   long long max_s_nnz = 400000000LL;
   std::vector<int> boxes{8, 12, 16, 24};
   bool use_mesh = true;
+  namespace ba = diffphd::bench_args;
+  constexpr const char* prog = "bench_cuda_inverse_factor";
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::cerr << a << " needs a value\n";
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    try {
-      if (a == "--csv")
-        csv = next();
-      else if (a == "--reps")
-        reps = std::stoi(next());
-      else if (a == "--max-s-nnz")
-        max_s_nnz = std::stoll(next());
-      else if (a == "--boxes")
-        boxes = parse_list(next());
-      else if (a == "--mesh")
-        mesh_path = next();
-      else if (a == "--no-mesh")
-        use_mesh = false;
-      else if (a == "--spikes")
-        K = std::stoi(next());
-      else {
-        std::cerr << "unknown argument " << a << "\n";
-        return 2;
-      }
-    } catch (const std::exception&) {  // std::stoi / std::stoll on a value that is no number
-      std::cerr << a << ": \"" << argv[i] << "\" is not a number\n";
-      return 2;
-    }
-    if (reps < 1 || K < 1 || max_s_nnz < 1 ||
-        boxes.end() != std::find_if(boxes.begin(), boxes.end(), [](int k) { return k < 1; })) {
-      std::cerr << a << ": values must be >= 1\n";
+    auto next = [&] { return ba::value(prog, argc, argv, i); };
+    if (a == "--csv")
+      csv = next();
+    else if (a == "--reps")
+      reps = static_cast<int>(ba::integer(prog, a, next(), 1, 1'000'000));
+    else if (a == "--max-s-nnz")
+      max_s_nnz = ba::integer(prog, a, next(), 1, std::numeric_limits<long long>::max());
+    else if (a == "--boxes")
+      boxes = ba::integer_list(prog, a, next(), 1, 1000);
+    else if (a == "--mesh")
+      mesh_path = next();
+    else if (a == "--no-mesh")
+      use_mesh = false;
+    else if (a == "--spikes")
+      K = static_cast<int>(ba::integer(prog, a, next(), 1, 1'000'000));
+    else {
+      std::cerr << "unknown argument " << a << "\n";
       return 2;
     }
   }

@@ -21,6 +21,7 @@
 #include <fstream>
 #include <functional>
 #include <iostream>
+#include <limits>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -41,6 +42,7 @@
 #define BENCH_HAVE_IO_TETGEN 1
 #endif
 
+#include "bench_args.hpp"
 #include "bench_timing.hpp"
 
 #ifndef DIFFPHD_DATA_DIR
@@ -369,15 +371,10 @@ int main(int argc, char** argv) {
   std::string csv, mesh_path = std::string(DIFFPHD_DATA_DIR) + "/meshes/armadillo";
   int reps = 21;
   long long max_s_nnz = 150'000'000;
+  namespace ba = diffphd::bench_args;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::cerr << a << " needs a value\n";
-        std::exit(2);
-      }
-      return argv[++i];
-    };
+    auto value = [&] { return ba::value("bench_factor", argc, argv, i); };
     if (a == "--quick")
       quick = true;
     else if (a == "--json")
@@ -385,9 +382,9 @@ int main(int argc, char** argv) {
     else if (a == "--csv")
       csv = value();
     else if (a == "--reps")
-      reps = std::max(3, std::atoi(value().c_str()));
+      reps = static_cast<int>(ba::integer("bench_factor", a, value(), 3, 1'000'000));
     else if (a == "--max-s-nnz")
-      max_s_nnz = std::atoll(value().c_str());
+      max_s_nnz = ba::integer("bench_factor", a, value(), 1, std::numeric_limits<long long>::max());
     else if (a == "--mesh")
       mesh_path = value();
     else if (a == "--help" || a == "-h") {

@@ -23,6 +23,8 @@
 #include <diffphd/core/small_matrix.hpp>
 #include <diffphd/energy/energy.hpp>
 
+#include "bench_args.hpp"
+
 namespace {
 
 using Mat3 = Eigen::Matrix3d;
@@ -56,11 +58,13 @@ double median_ns_per_element(int n, int reps, Fn&& body) {
 
 int main(int argc, char** argv) {
   int n = 100000, reps = 7;
+  namespace ba = diffphd::bench_args;
   for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--n") && i + 1 < argc)
-      n = std::max(1, std::atoi(argv[++i]));
-    else if (!std::strcmp(argv[i], "--reps") && i + 1 < argc)
-      reps = std::max(1, std::atoi(argv[++i]));
+    const std::string_view a = argv[i];
+    if (a == "--n")  // 72 bytes of F per element: 10^8 is 7.2 GB
+      n = static_cast<int>(ba::integer("bench_local_step", a, ba::value("bench_local_step", argc, argv, i), 1, 100'000'000));
+    else if (a == "--reps")
+      reps = static_cast<int>(ba::integer("bench_local_step", a, ba::value("bench_local_step", argc, argv, i), 1, 1'000'000));
     else {
       std::fprintf(stderr, "usage: bench_local_step [--n N] [--reps R]\n");
       return 2;

@@ -36,6 +36,8 @@
 #include <diffphd/solver/rollout.hpp>
 #include <diffphd/solver/scene_simulation.hpp>
 
+#include "bench_args.hpp"
+
 using namespace diffphd;
 using Pack = Energies<Corotated, Volume>;
 using json = nlohmann::json;
@@ -189,8 +191,9 @@ int main(int argc, char** argv) {
   int steps = mode == "forward" ? 10000 : 1000;
   bool trace = false;
   for (int i = 3; i < argc; ++i) {
-    if (std::string(argv[i]) == "--steps" && i + 1 < argc) {
-      steps = std::atoi(argv[++i]);
+    if (std::string(argv[i]) == "--steps") {
+      steps = static_cast<int>(diffphd::bench_args::integer(
+          "soak", "--steps", diffphd::bench_args::value("soak", argc, argv, i), 1, 100'000'000));
     } else if (std::string(argv[i]) == "--trace") {
       trace = true;
     } else {

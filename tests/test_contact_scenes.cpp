@@ -10,6 +10,8 @@
 #include <cmath>
 #include <string>
 
+#include <Eigen/SVD>
+
 #include <diffphd/contact/model.hpp>
 #include <diffphd/energy/energy.hpp>
 #include <diffphd/io/scene.hpp>
@@ -144,6 +146,37 @@ TEST_CASE("contact rows at 1e52 m: the NCP stops at its rounding floor, not its 
     CHECK(c.ncp_iterations <= 10 * r.iterations);
     CHECK(sim.solver().positions().allFinite());
   }
+}
+
+TEST_CASE("stretches of 1e55: every element's Volume projection converges, not at its cap",
+          "[contact][scene][volume]") {
+  // Found by fuzz_simulate: fuzz_huge_gravity mutated to gravity -8.2e58 m/s^2 on an 8 x 3 x 3
+  // block. Element stretches reach 1e55, where Volume's Newton advanced one unit of log-stretch
+  // per iteration and stopped unconverged at 100 in every element (19 s for two steps under
+  // ASan). The singular values of the state after each step go through Volume::stretches.
+  const io::SceneSpec scene = io::load_scene(std::string(DIFFPHD_SOURCE_DIR) +
+                                             "/tests/data/scenes/fuzz_huge_stretch.json");
+  ContactScene sim(scene);
+  double largest = 0;
+  for (int s = 0; s < 2; ++s) {
+    const StepReport r = sim.step();
+    INFO("step " << s << ": " << r.iterations << " PD iterations, " << r.message);
+    const VertexMatrix<3>& x = sim.solver().positions();
+    REQUIRE(x.allFinite());
+    ProjectStats st;
+    for (Index e = 0; e < sim.mesh().num_elements(); ++e) {
+      const Eigen::Vector3d sigma =
+          Eigen::JacobiSVD<Eigen::Matrix3d>(sim.mesh().deformation_gradient(e, x)).singularValues();
+      largest = std::max(largest, sigma(0));
+      Volume::stretches<double, 3>(sigma, &st);
+    }
+    INFO(st.projections << " projections, " << st.newton_iterations << " Newton iterations, at most "
+                        << st.max_iterations << ", " << st.not_converged << " unconverged");
+    CHECK(st.not_converged == 0);
+    CHECK(st.line_search_failures == 0);
+    CHECK(st.max_iterations <= 30);
+  }
+  CHECK(largest > 1e40);  // the regime the finding is about
 }
 
 TEST_CASE("a contact scene on a contact-free SceneSimulation is an error, not a silent run",

@@ -282,6 +282,43 @@ TEMPLATE_TEST_CASE_SIG("Volume projection is the closest det = 1 matrix", "[ener
   CHECK((P - Qb).norm() < 1e-7);
 }
 
+TEMPLATE_TEST_CASE_SIG("Volume projection converges far from the identity (stretches 1e7 to 1e150)",
+                       "[energy][volume]", ((int Dim), Dim), 2, 3) {
+  // Closed form: for sigma = (K, a, a) (3D) or (K, a) (2D) with K >> 1 the closest stretches
+  // with prod s = 1 are (K, K^-1/2, K^-1/2) and (K, 1/K): moving s_1 off K costs K-scale
+  // distance, the small ones pay only O(a) (the corrections are below 1e-14 relative). For
+  // (K1, K2, a) in 3D it is (K1, K2, 1 / (K1 K2)). Before the step extension of the far regime,
+  // sigma = (1e55, 1, 1) stopped at the 100-iteration cap with s_1 = 5.8e48 (fuzz_simulate).
+  using Vec = Eigen::Matrix<double, Dim, 1>;
+  auto check = [](const Vec& sigma, const Vec& expected) {
+    ProjectStats st;
+    const Vec s = Volume::stretches<double, Dim>(sigma, &st);
+    INFO("sigma " << sigma.transpose() << " -> s " << s.transpose() << " in "
+                  << st.newton_iterations << " Newton iterations");
+    CHECK(st.not_converged == 0);
+    CHECK(st.line_search_failures == 0);
+    CHECK(st.newton_iterations <= 30);
+    // The large stretches to 1e-12. The small ones to 1e-6: how f splits between them is
+    // conditioned like K^2 / s_small^2 (1e110 at K = 1e55), so two equal ones come out 1e-7
+    // apart, relative; that moves p by 1e-7 s_small, far below K's rounding. (The unconverged
+    // answer before the fix was s_1 = 5.8e48 for K = 1e55.)
+    for (int i = 0; i < Dim; ++i)
+      CHECK(s(i) == Approx(expected(i)).epsilon(expected(i) > 1 ? 1e-12 : 1e-6));
+  };
+  for (double K : {1e7, 1e20, 1e55, 1e100, 1e150}) {
+    for (double a : {1.0, 1e-3, -0.5}) {  // -0.5: an inverted element
+      Vec sigma = Vec::Constant(a), expected = Vec::Constant(std::pow(K, -1.0 / (Dim - 1)));
+      sigma(0) = K;
+      expected(0) = K;
+      check(sigma, expected);
+    }
+  }
+  if constexpr (Dim == 3) {
+    check(Vec(1e55, 1e54, 1e53), Vec(1e55, 1e54, 1e-109));
+    check(Vec(1e55, 1e55, 0.0), Vec(1e55, 1e55, 1e-110));
+  }
+}
+
 TEMPLATE_TEST_CASE_SIG("Neo-Hookean and log-volume proxes are the proximal maps", "[energy][prox]",
                        ((int Dim), Dim), 2, 3) {
   std::mt19937 rng(31 + Dim);

@@ -81,6 +81,13 @@ struct Volume : detail::SvdTerm<Volume> {
       x(i) = log(a > tiny ? a : tiny);
     }
     x.array() -= x.sum() / S(Dim);
+    // Far from the identity (some stretch above 1e6, which no sane simulation reaches) Newton
+    // crawls: where s_i << sigma_i the |H|-modified step is about one unit of log-stretch, so
+    // 100 iterations cannot reach sigma = 1e55 = e^127 (a fuzzed scene with 1e55-m displacements
+    // spent every element's 100 iterations there, unconverged). In that regime only, an accepted
+    // full step is doubled while the objective still falls along it; below it every input takes
+    // exactly the iterations it took before.
+    const bool far = amax > S(1e6);
     const S tol = M::sqrt(detail::eps_of<S>());
     const Vec one_hat = Vec::Constant(S(1) / M::sqrt(S(Dim)));
     const Mat P = Mat::Identity() - one_hat * one_hat.transpose();
@@ -125,10 +132,27 @@ struct Volume : detail::SvdTerm<Volume> {
       for (int ls = 0; ls < 50; ++ls) {
         const Vec trial = x + alpha * d;
         const Vec s_trial = expv(trial);
-        if (objective_at(s_trial) <= f0 + S(1e-4) * alpha * slope) {
+        S f_trial = objective_at(s_trial);
+        if (f_trial <= f0 + S(1e-4) * alpha * slope) {
           x = trial;
           s = s_trial;
           ok = true;
+          for (int grow = 0; far && ls == 0 && grow < 64; ++grow) {
+            const Vec longer = x + alpha * d;  // twice the accepted step
+            const Vec s_longer = expv(longer);
+            // There f cannot tell the steps apart (f ~ sigma^2 / 2 changes below its rounding),
+            // so the test is the slope along d at the longer point, which has no cancellation:
+            // still falling there, and f not above (also stops on an overflow to inf or NaN).
+            const S f_longer = objective_at(s_longer);
+            S slope_longer = S(0);
+            for (int i = 0; i < Dim; ++i)
+              slope_longer += s_longer(i) * (s_longer(i) - sigma(i)) * d(i);
+            if (!(slope_longer < S(0) && f_longer <= f_trial)) break;
+            x = longer;
+            s = s_longer;
+            f_trial = f_longer;
+            alpha *= S(2);
+          }
           break;
         }
         alpha *= S(0.5);
