@@ -63,8 +63,8 @@ inline std::vector<int> integer_list(std::string_view program, std::string_view 
   std::vector<int> out;
   for (std::size_t start = 0;;) {
     const std::size_t comma = text.find(',', start);
-    const std::string_view item =
-        text.substr(start, comma == std::string_view::npos ? std::string_view::npos : comma - start);
+    const std::string_view item = text.substr(
+        start, comma == std::string_view::npos ? std::string_view::npos : comma - start);
     out.push_back(static_cast<int>(integer(program, option, item, lo, hi)));
     if (comma == std::string_view::npos) return out;
     start = comma + 1;

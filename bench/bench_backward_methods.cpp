@@ -54,9 +54,11 @@ int main(int argc, char** argv) {
     for (int i = 5; i < argc; ++i) {
       const std::string a = argv[i];
       if (a.rfind("stall=", 0) == 0) {
-        opt.pcg_stall_window = static_cast<int>(ba::integer(prog, "stall=", a.substr(6), 1, 1'000'000));
+        opt.pcg_stall_window =
+            static_cast<int>(ba::integer(prog, "stall=", a.substr(6), 1, 1'000'000));
       } else if (a.rfind("cap=", 0) == 0) {
-        opt.pcg_max_iterations = static_cast<int>(ba::integer(prog, "cap=", a.substr(4), 1, 100'000'000));
+        opt.pcg_max_iterations =
+            static_cast<int>(ba::integer(prog, "cap=", a.substr(4), 1, 100'000'000));
       } else if (a.rfind("warm=", 0) == 0) {
         opt.fallback_warm_start = ba::integer(prog, "warm=", a.substr(5), 0, 1) != 0;
       } else {

@@ -63,8 +63,8 @@ int main(int argc, char** argv) {
     else if (a == "--reps")
       reps = static_cast<int>(ba::integer(prog, a, ba::value(prog, argc, argv, i), 1, 10'000));
     else {
-      std::fprintf(stderr, "%s: unknown option %s (options: --cells N, --steps N, --reps N)\n", prog,
-                   argv[i]);
+      std::fprintf(stderr, "%s: unknown option %s (options: --cells N, --steps N, --reps N)\n",
+                   prog, argv[i]);
       return 2;
     }
   }

@@ -141,7 +141,6 @@ Row run_mesh(const std::string& name, const SimplicialMesh<3>& mesh, int reps, l
   return row;
 }
 
-
 }  // namespace
 
 int main(int argc, char** argv) {

@@ -62,9 +62,11 @@ int main(int argc, char** argv) {
   for (int i = 1; i < argc; ++i) {
     const std::string_view a = argv[i];
     if (a == "--n")  // 72 bytes of F per element: 10^8 is 7.2 GB
-      n = static_cast<int>(ba::integer("bench_local_step", a, ba::value("bench_local_step", argc, argv, i), 1, 100'000'000));
+      n = static_cast<int>(ba::integer(
+          "bench_local_step", a, ba::value("bench_local_step", argc, argv, i), 1, 100'000'000));
     else if (a == "--reps")
-      reps = static_cast<int>(ba::integer("bench_local_step", a, ba::value("bench_local_step", argc, argv, i), 1, 1'000'000));
+      reps = static_cast<int>(ba::integer(
+          "bench_local_step", a, ba::value("bench_local_step", argc, argv, i), 1, 1'000'000));
     else {
       std::fprintf(stderr, "usage: bench_local_step [--n N] [--reps R]\n");
       return 2;

@@ -170,8 +170,9 @@ TEST_CASE("stretches of 1e55: every element's Volume projection converges, not a
       largest = std::max(largest, sigma(0));
       Volume::stretches<double, 3>(sigma, &st);
     }
-    INFO(st.projections << " projections, " << st.newton_iterations << " Newton iterations, at most "
-                        << st.max_iterations << ", " << st.not_converged << " unconverged");
+    INFO(st.projections << " projections, " << st.newton_iterations
+                        << " Newton iterations, at most " << st.max_iterations << ", "
+                        << st.not_converged << " unconverged");
     CHECK(st.not_converged == 0);
     CHECK(st.line_search_failures == 0);
     CHECK(st.max_iterations <= 30);

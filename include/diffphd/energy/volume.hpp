@@ -44,7 +44,9 @@ inline double volume_scale(VolumeWeight v, int dim) {
 /// In stretch space: s* = argmin ||s - sigma||^2 subject to prod s = 1, s > 0, and
 /// p = U diag(s*) V^T. Solved in log-stretches x = ln s on the hyperplane sum x = 0 by Newton
 /// with |eigenvalue| modification and Armijo backtracking, started from
-/// x = ln|sigma| - mean(ln|sigma|) (|sigma| floored at 1e-8 max(1, |sigma|)). For an inverted F
+/// x = ln|sigma| - mean(ln|sigma|) (|sigma| floored at 1e-8 max(1, |sigma|)); above a stretch of
+/// 1e6 an accepted full step is also doubled while the slope along it stays negative (there f
+/// cannot see a unit step; docs/energies.md). For an inverted F
 /// (sigma_last < 0) the result has every s_i > 0: flipping the smallest stretch through zero is
 /// the cheapest way to reach det = +1. The problem is not convex: for large uniform stretch
 /// (sigma = t 1 with t > 2 in 2D) the isotropic point is a saddle and the minimiser is
