@@ -484,3 +484,62 @@ TEMPLATE_TEST_CASE_SIG("NCP: rows far beyond metres converge to their rounding f
     CHECK((ls / scale - l1).norm() <= 1e-8 * l1.norm());
   }
 }
+
+TEST_CASE("NCP: an infeasible contact set stops when it stalls, without LU or repeated GMRES",
+          "[contact][ncp]") {
+  // 60 vertices, each pressed 0.1 m deep by two contacts with opposite normals: no motion
+  // satisfies both, so the NCP has no solution and |phi| cannot fall below 0.1 m. W is singular
+  // (each pair's rows are dependent). fuzz_simulate found a scene like this (196 vertices
+  // between a half-space and an enclosing sphere, tests/data/scenes/fuzz_dense_ncp.json): every
+  // NCP solve ran all its iterations, each a failed 400-iteration GMRES, a failed Cholesky and
+  // LDL^T, then an LU and a complete orthogonal decomposition (22.7 s a step). The old solver,
+  // on this problem: 50 iterations, 18 457 GMRES iterations.
+  constexpr int Dim = 3;
+  const int nv = 60;
+  std::mt19937 rng(3);
+  std::normal_distribution<double> N(0, 1);
+  std::vector<ContactPoint<Dim>> pts(2 * nv);
+  MatrixX J = MatrixX::Zero(Dim * 2 * nv, Dim * nv);
+  VectorX y0 = VectorX::Zero(Dim * 2 * nv);
+  for (int v = 0; v < nv; ++v) {
+    const Vec<3> n = Vec<3>(N(rng), N(rng), N(rng)).normalized();
+    for (int side = 0; side < 2; ++side) {
+      const Vec<3> nn = side ? Vec<3>(-n) : n;
+      const int c = 2 * v + side;
+      J.block<1, 3>(Dim * c, Dim * v) = nn.transpose();
+      J.block<2, 3>(Dim * c + 1, Dim * v) = tangent_basis<3>(nn).transpose();
+      y0[Dim * c] = -0.1;
+    }
+  }
+  MatrixX Ainv = MatrixX::Identity(Dim * nv, Dim * nv);  // a coupled, SPD A^-1
+  for (int i = 0; i + Dim < Dim * nv; ++i) Ainv(i, i + Dim) = Ainv(i + Dim, i) = 0.3;
+  const MatrixX W = 1e-3 * J * Ainv * J.transpose();
+  for (const auto method : {ContactOptions::NcpLinear::Auto, ContactOptions::NcpLinear::Dense}) {
+    NcpSolver<Dim> s;
+    s.linear.method = method;
+    VectorX lambda;
+    const NcpReport r = s.solve(pts, W, y0, lambda, 1e-14, 50);
+    INFO("method " << static_cast<int>(method) << ": " << r.iterations << " iterations, residual "
+                   << r.residual << ", ldlt " << r.ldlt_solves << ", lu " << r.lu_solves
+                   << ", GMRES " << r.krylov_solves << " solves / " << r.krylov_iterations
+                   << " iterations");
+    CHECK_FALSE(r.converged);
+    CHECK(r.stalled);
+    CHECK(r.residual >= 0.1 - 1e-9);  // no multiplier does better than the half-way point
+    CHECK(r.iterations <= 2 * s.stall_window);
+    // At most one GMRES solve fails (and runs to its cap); the rest of the solve is dense.
+    CHECK(r.krylov_iterations <=
+          (r.krylov_solves + 1) * (s.linear.krylov_max_iterations + 1));
+    CHECK(lambda.allFinite());
+  }
+  // The same pairs with room between them (gaps -0.1 and +0.5) are feasible: the stall test
+  // leaves the solve alone, and it converges.
+  VectorX y1 = y0;
+  for (int v = 0; v < nv; ++v) y1[Dim * (2 * v + 1)] = 0.5;
+  NcpSolver<Dim> s;
+  VectorX lambda;
+  const NcpReport r = s.solve(pts, W, y1, lambda, 1e-14, 50);
+  INFO(r.iterations << " iterations, residual " << r.residual);
+  CHECK(r.converged);
+  CHECK_FALSE(r.stalled);
+}

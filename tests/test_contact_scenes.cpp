@@ -180,6 +180,34 @@ TEST_CASE("stretches of 1e55: every element's Volume projection converges, not a
   CHECK(largest > 1e40);  // the regime the finding is about
 }
 
+TEST_CASE("an infeasible contact set (196 vertices between two colliders) costs a bounded NCP",
+          "[contact][scene][ncp]") {
+  // Found by fuzz_simulate: vertices pressed between a half-space and an enclosing sphere have
+  // no feasible position, so no NCP solve can converge. Each ran all 50 Newton iterations, each
+  // iteration a failed 400-iteration GMRES then a dense LU and complete orthogonal
+  // decomposition: step 0 had 355 NCP iterations, 325 LU solves, 99 241 GMRES iterations
+  // (22.7 s in Release; step 1: 287, 1, 34 166). With the harness's cap of 10 PD iterations.
+  const io::SceneSpec scene = io::load_scene(std::string(DIFFPHD_SOURCE_DIR) +
+                                             "/tests/data/scenes/fuzz_dense_ncp.json");
+  SceneOverrides over;
+  over.max_iterations = 10;
+  ContactScene sim(scene, over);
+  for (int s = 0; s < 2; ++s) {
+    const StepReport r = sim.step();
+    const auto& c = r.contact;
+    INFO("step " << s << ": " << r.iterations << " PD iterations, " << c.points << " points, "
+                 << c.ncp_iterations << " NCP iterations (" << c.ncp_unconverged
+                 << " unconverged at the end), LDL " << c.ncp_ldlt << ", LU " << c.ncp_lu
+                 << ", GMRES " << c.ncp_krylov << " / " << c.ncp_krylov_iterations
+                 << " iterations, " << c.seconds_ncp << " s in the NCP");
+    REQUIRE(c.points > 150);  // the regime of the finding
+    CHECK(c.ncp_lu <= 150);           // measured: 112 and 0 (before: 325 and 1)
+    CHECK(c.ncp_iterations <= 180);   // measured: 137 and 91 (before: 355 and 287)
+    CHECK(c.ncp_krylov_iterations <= 20000);  // measured: 2951, 8351 (before: 99 241, 34 166)
+    CHECK(sim.solver().positions().allFinite());
+  }
+}
+
 TEST_CASE("a contact scene on a contact-free SceneSimulation is an error, not a silent run",
           "[contact][scene]") {
   const io::SceneSpec scene = io::load_scene(kScenes + "ball_drop.json");

@@ -45,6 +45,10 @@ struct NcpReport {
   int lu_solves = 0;         ///< ... by LU (some contact sliding)
   int krylov_solves = 0;     ///< ... by GMRES (large coupled sets)
   int krylov_iterations = 0; ///< GMRES iterations over those
+  /// Stopped early: 1/2 |phi|^2 did not halve in NcpSolver::stall_window Newton iterations (an
+  /// infeasible or degenerate contact set, e.g. a vertex held between two colliders that leave
+  /// it no room). converged is false.
+  bool stalled = false;
 };
 
 /// \brief How NcpSolver solves its Newton systems (from ContactOptions).
@@ -72,6 +76,12 @@ class NcpSolver {
  public:
   using Block = Eigen::Matrix<double, Dim, Dim>;
   NcpLinearOptions linear;
+  /// Stop when the merit 1/2 |phi|^2 has not halved in this many Newton iterations. Over the
+  /// 8413 NCP solves of the shipped contact scenes (60 steps each) no solve ran more than 16
+  /// iterations and none went 8 iterations without halving; an infeasible contact set (a
+  /// fuzzed scene: 196 vertices pressed between a half-space and a sphere) ran all 50 with
+  /// |phi| stuck at 0.2 m, 22.7 s a step. 0: never stop early.
+  int stall_window = 8;
 
   /// \param W  K x K Delassus matrix (K = Dim * points.size())
   /// \param y0 K affine part of the rows (gap rows already minus their targets)
@@ -96,6 +106,9 @@ class NcpSolver {
     std::vector<Index> coupled;
     wcc_set_.clear();  // W may be new: gather W_CC afresh
     const double y0_scale = y0.cwiseAbs().maxCoeff();
+    double theta_ref = theta;  // the merit at the last halving, and when it happened
+    int it_ref = 0;
+    bool krylov_failed = false;  // GMRES failed once in this solve: dense for the rest of it
     for (int it = 0;; ++it) {
       rep.residual = phi.cwiseAbs().maxCoeff();
       // phi is formed from y = y0 + W lambda, so it is known only to a few ulps of the larger of
@@ -108,6 +121,13 @@ class NcpSolver {
         break;
       }
       if (it >= max_iterations) break;
+      if (theta < 0.5 * theta_ref) {
+        theta_ref = theta;
+        it_ref = it;
+      } else if (stall_window > 0 && it - it_ref >= stall_window) {
+        rep.stalled = true;
+        break;
+      }
       rep.iterations = it + 1;
       bool sliding = false;
       residual(points, y, lambda, phi, &Dy, &Dl, &sliding);
@@ -125,9 +145,10 @@ class NcpSolver {
         }
       }
       const Index rows = Dim * static_cast<Index>(coupled.size());
-      const bool krylov = rows > 0 && (linear.method == ContactOptions::NcpLinear::Krylov ||
-                                       (linear.method == ContactOptions::NcpLinear::Auto &&
-                                        rows >= linear.krylov_min_rows));
+      const bool krylov = rows > 0 && !krylov_failed &&
+                          (linear.method == ContactOptions::NcpLinear::Krylov ||
+                           (linear.method == ContactOptions::NcpLinear::Auto &&
+                            rows >= linear.krylov_min_rows));
       const VectorX dl_decoupled = dl;
       bool solved = false;
       if (krylov) {
@@ -135,6 +156,10 @@ class NcpSolver {
         solved = solve_krylov(W, Dy, Dl, phi, coupled, dl, &kit);
         rep.krylov_iterations += kit;
         if (solved) ++rep.krylov_solves;
+        // A failed GMRES ran all krylov_max_iterations (400 products with W_CC) before the dense
+        // fallback; on a degenerate set it fails again at every iteration (99 241 GMRES
+        // iterations in one fuzzed step), so the rest of this solve goes dense directly.
+        krylov_failed = !solved;
       }
       if (!solved && !sliding && solve_symmetric(points, W, Dy, Dl, phi, dl)) {
         ++rep.ldlt_solves;
