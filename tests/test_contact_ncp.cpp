@@ -485,7 +485,7 @@ TEMPLATE_TEST_CASE_SIG("NCP: rows far beyond metres converge to their rounding f
   }
 }
 
-TEST_CASE("NCP: an infeasible contact set stops when it stalls, without LU or repeated GMRES",
+TEST_CASE("NCP: an infeasible contact set stops when it stalls and does not repeat a failed GMRES",
           "[contact][ncp]") {
   // 60 vertices, each pressed 0.1 m deep by two contacts with opposite normals: no motion
   // satisfies both, so the NCP has no solution and |phi| cannot fall below 0.1 m. W is singular
