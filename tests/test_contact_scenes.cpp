@@ -200,10 +200,13 @@ TEST_CASE("an infeasible contact set (196 vertices between two colliders) costs 
                  << " unconverged at the end), LDL " << c.ncp_ldlt << ", LU " << c.ncp_lu
                  << ", GMRES " << c.ncp_krylov << " / " << c.ncp_krylov_iterations
                  << " iterations, " << c.seconds_ncp << " s in the NCP");
-    REQUIRE(c.points > 150);  // the regime of the finding
-    CHECK(c.ncp_lu <= 150);           // measured: 112 and 0 (before: 325 and 1)
-    CHECK(c.ncp_iterations <= 180);   // measured: 137 and 91 (before: 355 and 287)
-    CHECK(c.ncp_krylov_iterations <= 20000);  // measured: 2951, 8351 (before: 99 241, 34 166)
+    if (s == 0) REQUIRE(c.points > 150);  // the regime of the finding (step 1: 124-125 points)
+    // Measured (LAPACK dense solves, GMRES early stop): LU 84 and 0, NCP iterations 109 and 136,
+    // GMRES iterations 812 and 7668. With the stall stop alone: 112/0, 137/91, 2951/8351;
+    // before it: 325/1, 355/287, 99 241/34 166.
+    CHECK(c.ncp_lu <= 150);
+    CHECK(c.ncp_iterations <= 180);
+    CHECK(c.ncp_krylov_iterations <= 20000);
     CHECK(sim.solver().positions().allFinite());
   }
 }

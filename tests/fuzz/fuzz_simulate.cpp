@@ -16,6 +16,7 @@
 /// or METIS failure on a scene the parser accepted is one), or a step that leaves a non-finite
 /// state without saying so (StepStatus::NonFinite).
 #include <diffphd/contact/model.hpp>
+#include <diffphd/linalg/blas_threads.hpp>
 #include <diffphd/solver/scene_simulation.hpp>
 
 #include "fuzz_common.hpp"
@@ -42,6 +43,9 @@ void simulate(diffphd::io::SceneSpec scene, diffphd::io::EnergyKind kind) {
 }  // namespace
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
+  // One BLAS thread, as `diffphd run` sets it: OpenBLAS's idle workers spin (sched_yield was a
+  // third of the profile on the dense-contact input) and the harness runs one input at a time.
+  if (!diffphd::blas_threads_from_environment()) diffphd::set_blas_threads(1);
   fuzz::set_small_limits();
   diffphd::io::limits().max_vertices = 500;
   diffphd::io::limits().max_elements = 500;

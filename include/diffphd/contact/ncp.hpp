@@ -17,9 +17,10 @@
 /// Newton: d phi = D_y W d lambda + D_l d lambda with per-contact blocks D_y, D_l (the Omega and
 /// E of eq. 35). When no contact slides, D_y and D_l are diagonal and the rows with D_y > 0 give
 /// the symmetric M_sys = W + D_y^-1 D_l (Omega W Omega^T + E after row scaling), solved by
-/// Eigen's blocked Cholesky (LDL^T when a pivot vanishes); separated contacts (D_y = 0) decouple and are solved on their own. A sliding
-/// contact makes the Jacobian nonsymmetric; then a partial-pivoting LU solves it. An Armijo line
-/// search on 1/2 |phi|^2 globalises the iteration.
+/// LAPACK's blocked Cholesky (Eigen's LDL^T when a pivot vanishes); separated contacts
+/// (D_y = 0) decouple and are solved on their own. A sliding contact makes the Jacobian
+/// nonsymmetric; then LAPACK's partial-pivoting LU solves it (a singular one by least squares).
+/// An Armijo line search on 1/2 |phi|^2 globalises the iteration.
 
 #include <algorithm>
 #include <cmath>
@@ -28,6 +29,7 @@
 
 #include <Eigen/Dense>
 
+#include "../linalg/dense_lapack.hpp"
 #include "../linalg/gmres.hpp"
 #include "types.hpp"
 
@@ -327,7 +329,7 @@ class NcpSolver {
     for (Index c = 0; c < np; ++c) {
       const auto dc = d.template segment<Dim>(Dim * c);
       if (dc.isZero(0)) continue;
-      out.noalias() += W.template middleCols<Dim>(Dim * c) * dc;
+      lapack::add_product(W, Dim * c, Dim, dc.data(), out);
     }
   }
 
@@ -341,37 +343,64 @@ class NcpSolver {
       Eigen::Matrix<double, Dim, 1> before = trial.template segment<Dim>(Dim * c);
       project_one(points[c], trial.template segment<Dim>(Dim * c));
       const Eigen::Matrix<double, Dim, 1> corr = trial.template segment<Dim>(Dim * c) - before;
-      if (!corr.isZero(0)) ytrial.noalias() += W.template middleCols<Dim>(Dim * c) * corr;
+      if (!corr.isZero(0)) lapack::add_product(W, Dim * c, Dim, corr.data(), ytrial);
     }
   }
 
+  /// W on the coupled contacts, gathered into wcc_ unless it holds them already (the coupled
+  /// set repeats over Newton iterations; solve() clears it, W may be new).
+  void gather_wcc(const MatrixX& W, const std::vector<Index>& coupled) {
+    if (coupled == wcc_set_) return;
+    const Index m = static_cast<Index>(coupled.size());
+    wcc_.resize(Dim * m, Dim * m);
+    for (Index j = 0; j < m; ++j)
+      for (int k = 0; k < Dim; ++k) {
+        const auto from = W.col(Dim * coupled[j] + k);
+        auto to = wcc_.col(Dim * j + k);
+        for (Index i = 0; i < m; ++i)
+          to.template segment<Dim>(Dim * i) = from.template segment<Dim>(Dim * coupled[i]);
+      }
+    wcc_set_ = coupled;
+  }
+
   /// The reduced nonsymmetric system by partial-pivoting LU (least squares when singular).
-  static void solve_dense(const MatrixX& W, const std::vector<Block>& Dy,
-                          const std::vector<Block>& Dl, const VectorX& phi,
-                          const std::vector<Index>& coupled, VectorX& dl) {
+  void solve_dense(const MatrixX& W, const std::vector<Block>& Dy, const std::vector<Block>& Dl,
+                   const VectorX& phi, const std::vector<Index>& coupled, VectorX& dl) {
     const Index m = static_cast<Index>(coupled.size());
     if (m == 0) return;
     VectorX Wd = VectorX::Zero(dl.size());
     add_columns(W, dl, Wd);  // dl holds the decoupled part only
+    gather_wcc(W, coupled);
     VectorX rhs(Dim * m);
     MatrixX Jm(Dim * m, Dim * m);
+    // J = D_y W_CC + D_l, one Dim-row band at a time by BLAS (a 3 x 3 block per Eigen product
+    // was most of the assembly's cost under the sanitizers).
     for (Index i = 0; i < m; ++i) {
       const Index c = coupled[i];
       rhs.template segment<Dim>(Dim * i) =
           -phi.template segment<Dim>(Dim * c) - Dy[c] * Wd.template segment<Dim>(Dim * c);
-      for (Index j = 0; j < m; ++j)
-        Jm.template block<Dim, Dim>(Dim * i, Dim * j).noalias() =
-            Dy[c] * W.template block<Dim, Dim>(Dim * c, Dim * coupled[j]);
+      lapack::band_product(Dy[c], wcc_, Dim * i, Jm);
       Jm.template block<Dim, Dim>(Dim * i, Dim * i) += Dl[c];
     }
-    Eigen::PartialPivLU<MatrixX> lu(Jm);
-    VectorX x = lu.solve(rhs);
-    // Redundant contacts (two bodies whose vertices coincide touch each other both ways: 6 rows
-    // on the same 3 DoFs) make the Jacobian exactly singular and the LU returns NaN: take the
-    // least-squares minimum-norm step instead. A (numerically) singular Jacobian shows as a
-    // non-finite or inaccurate solution.
-    if (!x.allFinite() || (Jm * x - rhs).norm() > 1e-8 * rhs.norm())
-      x = Jm.completeOrthogonalDecomposition().solve(rhs);
+    // LAPACK's blocked LU (dense_lapack.hpp: twice Eigen's speed, and uninstrumented under the
+    // fuzzers' sanitizers). Redundant contacts (two bodies whose vertices coincide touch each
+    // other both ways: 6 rows on the same 3 DoFs; a vertex pressed between two colliders) make
+    // the Jacobian singular: a pivot at rounding size (eps times the size, the rank threshold of
+    // a pivoted QR), or a non-finite or inaccurate solution. Then the least-squares minimum-norm
+    // step by a complete orthogonal factorisation: a tiny pivot would instead blow the step up
+    // along the null space (the split of an impulse between the redundant rows).
+    const double singular = std::numeric_limits<double>::epsilon() * Dim * m;
+    MatrixX F = Jm;
+    VectorX x = rhs, check;
+    bool ok = lapack::lu_solve(F, x, singular) && x.allFinite();
+    if (ok) {
+      lapack::gemv(Jm, x, check);
+      ok = (check - rhs).norm() <= 1e-8 * rhs.norm();
+    }
+    if (!ok) {
+      x = rhs;
+      lapack::least_squares(Jm, x, singular);
+    }
     for (Index i = 0; i < m; ++i)
       dl.template segment<Dim>(Dim * coupled[i]) = x.template segment<Dim>(Dim * i);
   }
@@ -383,42 +412,40 @@ class NcpSolver {
                     const VectorX& phi, const std::vector<Index>& coupled, VectorX& dl,
                     int* iterations) {
     const Index m = static_cast<Index>(coupled.size());
-    if (coupled != wcc_set_) {
-      wcc_.resize(Dim * m, Dim * m);
-      for (Index j = 0; j < m; ++j)
-        for (Index i = 0; i < m; ++i)
-          wcc_.template block<Dim, Dim>(Dim * i, Dim * j) =
-              W.template block<Dim, Dim>(Dim * coupled[i], Dim * coupled[j]);
-      wcc_set_ = coupled;
-    }
+    gather_wcc(W, coupled);
     VectorX Wd = VectorX::Zero(dl.size());
     add_columns(W, dl, Wd);
-    std::vector<Block> P(m);
+    // The preconditioned blocks P D_y and P D_l, formed once per system (two small products
+    // per block and operator application instead of three).
+    std::vector<Block> PDy(m), PDl(m);
     VectorX b(Dim * m);
     for (Index i = 0; i < m; ++i) {
       const Index c = coupled[i];
       const Block d = Dy[c] * wcc_.template block<Dim, Dim>(Dim * i, Dim * i) + Dl[c];
       Eigen::FullPivLU<Block> lu(d);
-      P[i] = lu.isInvertible() ? Block(lu.inverse()) : Block(Block::Identity());
+      const Block P = lu.isInvertible() ? Block(lu.inverse()) : Block(Block::Identity());
+      PDy[i].noalias() = P * Dy[c];
+      PDl[i].noalias() = P * Dl[c];
       b.template segment<Dim>(Dim * i) =
-          P[i] * (-phi.template segment<Dim>(Dim * c) - Dy[c] * Wd.template segment<Dim>(Dim * c));
+          P * (-phi.template segment<Dim>(Dim * c) - Dy[c] * Wd.template segment<Dim>(Dim * c));
     }
     VectorX t(Dim * m), out(Dim * m);
     auto op = [&](const VectorX& x) -> VectorX {
-      t.noalias() = wcc_ * x;
-      for (Index i = 0; i < m; ++i) {
-        const Index c = coupled[i];
-        out.template segment<Dim>(Dim * i) =
-            P[i] * (Dy[c] * t.template segment<Dim>(Dim * i) +
-                    Dl[c] * x.template segment<Dim>(Dim * i));
-      }
+      lapack::gemv(wcc_, x, t);
+      for (Index i = 0; i < m; ++i)
+        out.template segment<Dim>(Dim * i).noalias() =
+            PDy[i] * t.template segment<Dim>(Dim * i) + PDl[i] * x.template segment<Dim>(Dim * i);
       return out;
     };
     VectorX x = VectorX::Zero(Dim * m);
     double relres = 1;
+    // A run that at its restart cycles' rate cannot come within 10x of the 1e-2 it needs stops
+    // early (gmres.hpp): on a degenerate set GMRES stagnates near 1 (a fuzzed infeasible set:
+    // 0.61, 0.59, 0.57, ... 0.53 after 400 iterations), and the dense path follows anyway.
+    const double accept = std::max(1e-2, linear.krylov_tolerance);
     *iterations = detail::gmres(op, b, x, linear.krylov_tolerance, linear.krylov_max_iterations,
-                                linear.krylov_restart, &relres);
-    if (!x.allFinite() || !(relres <= std::max(1e-2, linear.krylov_tolerance))) return false;
+                                linear.krylov_restart, &relres, 10 * accept);
+    if (!x.allFinite() || !(relres <= accept)) return false;
     for (Index i = 0; i < m; ++i)
       dl.template segment<Dim>(Dim * coupled[i]) = x.template segment<Dim>(Dim * i);
     return true;
@@ -485,14 +512,13 @@ class NcpSolver {
       for (Index j = 0; j < m; ++j) M(i, j) = W(r, coupled[j]);
       M(i, i) += Dl[c](k, k) / dy;
     }
-    // M = W_AA + D_y^-1 D_l is symmetric positive (semi)definite: Eigen's blocked Cholesky
-    // (LL^T, several times faster than its unblocked LDL^T on K ~ 1000), LDL^T when the
+    // M = W_AA + D_y^-1 D_l is symmetric positive (semi)definite: LAPACK's blocked Cholesky
+    // (several times faster than Eigen's unblocked LDL^T on K ~ 1000), Eigen's LDL^T when the
     // Cholesky meets a zero pivot (a contact row with no compliance, e.g. on a Dirichlet DoF).
-    VectorX x;
-    Eigen::LLT<MatrixX> llt(M);
-    if (llt.info() == Eigen::Success) {
-      x = llt.solve(rhs);
-    } else {
+    VectorX x = rhs;
+    // A pivot at rounding size (a singular M from redundant rows) counts as a failed Cholesky.
+    MatrixX F = M;  // LAPACK's Cholesky overwrites its matrix; M stays for the LDL^T
+    if (!lapack::cholesky_solve(F, x, std::numeric_limits<double>::epsilon() * m)) {
       Eigen::LDLT<MatrixX> ldlt(M);
       if (ldlt.info() != Eigen::Success) return false;
       x = ldlt.solve(rhs);
@@ -503,7 +529,7 @@ class NcpSolver {
   }
 
   std::vector<double> rho_n_, rho_f_;
-  MatrixX wcc_;                  ///< W on the coupled contacts of the last Krylov solve
+  MatrixX wcc_;                  ///< W on the coupled contacts of the last reduced system
   std::vector<Index> wcc_set_;   ///< ... and those contacts
 };
 

@@ -15,9 +15,15 @@ namespace diffphd {
 namespace detail {
 
 /// GMRES(restart) for op(x) = b with x as the initial guess; returns operator applications.
+///
+/// give_up > 0 stops early a run that cannot reach it: after each restart cycle, the relative
+/// residual is extrapolated to max_it at that cycle's rate (restarted GMRES does not speed up
+/// from one cycle to the next); when the extrapolation stays above give_up, or the cycle made
+/// no progress, the run ends there. A caller that accepts a residual of a passes a margin
+/// above it (the NCP: 10 a). 0 (the default) runs to tol or max_it.
 template <class Op>
 int gmres(Op&& op, const VectorX& b, VectorX& x, double tol, int max_it, int restart,
-          double* relres) {
+          double* relres, double give_up = 0) {
   const double bnorm = b.norm();
   if (bnorm == 0) {
     x.setZero(b.size());
@@ -29,12 +35,21 @@ int gmres(Op&& op, const VectorX& b, VectorX& x, double tol, int max_it, int res
   std::vector<VectorX> Vb(m + 1);
   Eigen::MatrixXd H = Eigen::MatrixXd::Zero(m + 1, m);
   VectorX cs(m), sn(m), g(m + 1), w;
+  double cycle_relres = 0;  // the relative residual at the start of the last cycle, and when
+  int cycle_it = 0;
   while (true) {
     VectorX r = b - op(x);
     ++it;
     const double beta = r.norm();
     *relres = beta / bnorm;
     if (*relres <= tol || it >= max_it || !std::isfinite(beta)) return it;
+    if (give_up > 0 && cycle_it > 0) {
+      const double rate = *relres / cycle_relres;
+      const double cycles_left = double(max_it - it) / double(it - cycle_it);
+      if (!(rate < 1) || *relres * std::pow(rate, cycles_left) > give_up) return it;
+    }
+    cycle_relres = *relres;
+    cycle_it = it;
     Vb[0] = r / beta;
     g.setZero();
     g[0] = beta;
