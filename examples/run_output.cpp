@@ -84,6 +84,7 @@ json totals_json(const RunTotals& t) {
               {"active_sum", t.active_sum},
               {"redetections", t.redetections},
               {"ncp_unconverged", t.ncp_unconverged},
+              {"ncp_stalled", t.ncp_stalled},
               {"frame_times", t.frame_times}};
 }
 
@@ -107,6 +108,7 @@ RunTotals totals_from_json(const json& j) {
   t.active_sum = j.at("active_sum");
   t.redetections = j.at("redetections");
   t.ncp_unconverged = j.at("ncp_unconverged");
+  t.ncp_stalled = j.value("ncp_stalled", 0L);  // absent in checkpoints before 2026-12-07
   t.frame_times = j.at("frame_times").get<std::vector<double>>();
   return t;
 }
@@ -167,6 +169,7 @@ json run_summary(json j, const RunTotals& t, bool contact, const std::string& fa
     j["mean_active_contacts"] = t.steps ? t.active_sum / t.steps : 0.0;
     j["redetections"] = t.redetections;
     j["ncp_unconverged_iterations"] = t.ncp_unconverged;
+    j["ncp_stalled_iterations"] = t.ncp_stalled;
   }
   j["blas_threads"] = blas_threads();  // -1: the BLAS is not OpenBLAS
   j["openmp_threads"] = omp_get_max_threads();
@@ -187,7 +190,8 @@ std::string stats_header(bool contact) {
   if (contact)
     h += ",contact_points,contact_active,contact_sliding,contact_fraction,worst_penetration,"
          "complementarity,cone_violation,w_off_diagonal_ratio,ncp_iterations,ncp_ldlt,ncp_lu,"
-         "ncp_krylov,ncp_krylov_iterations,ncp_unconverged,redetections,seconds_detection,"
+         "ncp_krylov,ncp_krylov_iterations,ncp_unconverged,ncp_stalled,redetections,"
+         "seconds_detection,"
          "seconds_delassus,seconds_ncp";
   return h + "\n";
 }

@@ -50,7 +50,7 @@ struct RunTotals {
   // Contact: worst over steps, and the largest fraction of vertices in contact.
   double worst_pen = 0, worst_compl = 0, worst_cone = -std::numeric_limits<double>::infinity();
   double max_fraction = 0, active_sum = 0;
-  long redetections = 0, ncp_unconverged = 0;
+  long redetections = 0, ncp_unconverged = 0, ncp_stalled = 0;
   std::vector<double> frame_times;  ///< time of every frame written (frame 0 included)
 };
 

@@ -181,11 +181,12 @@ nlohmann::json run_scene(const io::SceneSpec& scene, const RunOptions& opt) {
         tot.active_sum += c.active;
         tot.redetections += c.redetections;
         tot.ncp_unconverged += c.ncp_unconverged;
+        tot.ncp_stalled += c.ncp_stalled;
         csv << ',' << c.points << ',' << c.active << ',' << c.sliding << ',' << fraction << ','
             << c.worst_penetration << ',' << c.complementarity << ',' << c.cone_violation << ','
             << c.w_off_diagonal_ratio << ',' << c.ncp_iterations << ',' << c.ncp_ldlt << ','
             << c.ncp_lu << ',' << c.ncp_krylov << ',' << c.ncp_krylov_iterations << ','
-            << c.ncp_unconverged << ',' << c.redetections << ','
+            << c.ncp_unconverged << ',' << c.ncp_stalled << ',' << c.redetections << ','
             << c.seconds_detection << ',' << c.seconds_delassus << ',' << c.seconds_ncp;
       }
       csv << '\n';

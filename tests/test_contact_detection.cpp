@@ -1302,4 +1302,7 @@ TEST_CASE("ContactOptions::validate refuses what the scene parser refuses, by na
   o = {};
   o.ncp_krylov_tolerance = 2;
   expect(o, "ncp_krylov_tolerance");
+  o = {};
+  o.ncp_stall_window = -1;
+  expect(o, "contact.ncp_stall_window");
 }

@@ -197,7 +197,8 @@ TEST_CASE("an infeasible contact set (196 vertices between two colliders) costs 
     const auto& c = r.contact;
     INFO("step " << s << ": " << r.iterations << " PD iterations, " << c.points << " points, "
                  << c.ncp_iterations << " NCP iterations (" << c.ncp_unconverged
-                 << " unconverged at the end), LDL " << c.ncp_ldlt << ", LU " << c.ncp_lu
+                 << " unconverged at the end, " << c.ncp_stalled << " stalled), LDL "
+                 << c.ncp_ldlt << ", LU " << c.ncp_lu
                  << ", GMRES " << c.ncp_krylov << " / " << c.ncp_krylov_iterations
                  << " iterations, " << c.seconds_ncp << " s in the NCP");
     if (s == 0) REQUIRE(c.points > 150);  // the regime of the finding (step 1: 124-125 points)
@@ -207,7 +208,27 @@ TEST_CASE("an infeasible contact set (196 vertices between two colliders) costs 
     CHECK(c.ncp_lu <= 150);
     CHECK(c.ncp_iterations <= 180);
     CHECK(c.ncp_krylov_iterations <= 20000);
+    CHECK(c.ncp_stalled <= c.ncp_unconverged);
     CHECK(sim.solver().positions().allFinite());
+  }
+}
+
+TEST_CASE("time.h = 2.6e60 s on free bodies: an InputError naming the scene and h",
+          "[contact][scene]") {
+  // Found by fuzz_simulate: the free bodies' PD matrix is singular in rounding (m / h^2 below
+  // the stiffness's rounding); CHOLMOD's failure escaped the first step as std::runtime_error.
+  const std::string file =
+      std::string(DIFFPHD_SOURCE_DIR) + "/tests/data/scenes/fuzz_huge_h_factor.json";
+  const io::SceneSpec scene = io::load_scene(file);
+  ContactScene sim(scene);
+  try {
+    sim.step();
+    FAIL("the first step at time.h = 2.6e60 s returned");
+  } catch (const InputError& e) {
+    INFO(e.what());
+    CHECK(e.file() == file);
+    CHECK(e.message().find("time step h = 2.56e+60 s") != std::string::npos);
+    CHECK(e.message().find("Reduce h, or fix vertices") != std::string::npos);
   }
 }
 

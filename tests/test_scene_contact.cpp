@@ -122,7 +122,7 @@ TEST_CASE("multi-body scene: bodies, body selectors, velocities, colliders, cont
   j["contact"] = json::parse(R"({"distance": 0.02, "friction": 0.4, "restitution": 0.1,
     "self_contact": true, "ncp_tolerance": 1e-10, "ncp_max_iterations": 20,
     "penetration_tolerance": 1e-3, "max_redetections": 5, "restitution_threshold": 0.1,
-    "delassus": "solves"})");
+    "delassus": "solves", "ncp_stall_window": 0})");
   const std::string file = write_scene(j, "good_three_bodies");
   const io::SceneSpec s = io::load_scene(file);
 
@@ -287,6 +287,7 @@ TEST_CASE("multi-body scene: bodies, body selectors, velocities, colliders, cont
   CHECK(o.max_redetections == 5);
   CHECK(o.restitution_threshold == 0.1);
   CHECK(o.delassus == contact::ContactOptions::Delassus::Solves);
+  CHECK(o.ncp_stall_window == 0);
   CHECK(io::has_contact(s));
 }
 
@@ -309,6 +310,8 @@ TEST_CASE("multi-body scene: has_contact and contact defaults", "[scene][contact
   CHECK(o.max_redetections == d.max_redetections);
   CHECK(o.restitution_threshold == d.restitution_threshold);
   CHECK(o.delassus == d.delassus);
+  CHECK(o.ncp_stall_window == d.ncp_stall_window);
+  CHECK(d.ncp_stall_window == 8);
   // mesh_contact off: no contact.
   json j = three_bodies();
   j["contact"] = {{"mesh_contact", false}};
@@ -723,6 +726,11 @@ TEST_CASE("multi-body and contact input errors name the file and the JSON path",
          j["contact"] = {{"ncp_krylov_min_rows", 0}};
        },
        {"contact.ncp_krylov_min_rows: must be >= 1, found 0"}},
+      {"contact ncp_stall_window",
+       [](json& j) {
+         j["contact"] = {{"ncp_stall_window", -1}};
+       },
+       {"contact.ncp_stall_window: must be >= 0, found -1"}},
       {"solver anderson_reset",
        [](json& j) {
          j["solver"] = {{"anderson_reset", 0}};

@@ -57,6 +57,8 @@ class NcpContact {
                   const VertexMatrix<Dim>& q_pred, double t0, double t1,
                   const VertexMatrix<Dim>* v_start = nullptr) {
     stats_ = ContactStepStats{};
+    last_ncp_converged_ = true;
+    last_ncp_stalled_ = false;
     options.validate();
     for (size_t i = 0; i < colliders.size(); ++i) colliders[i].validate(static_cast<int>(i));
     mesh_ = &mesh;
@@ -113,6 +115,7 @@ class NcpContact {
     ncp_.linear.krylov_min_rows = options.ncp_krylov_min_rows;
     ncp_.linear.krylov_tolerance = options.ncp_krylov_tolerance;
     ncp_.linear.krylov_max_iterations = options.ncp_krylov_max_iterations;
+    ncp_.stall_window = options.ncp_stall_window;
     const NcpReport r = ncp_.solve(points_, delassus_.W(), y0, lambda_, options.ncp_tolerance,
                                    options.ncp_max_iterations);
     stats_.ncp_iterations += r.iterations;
@@ -121,6 +124,7 @@ class NcpContact {
     stats_.ncp_krylov += r.krylov_solves;
     stats_.ncp_krylov_iterations += r.krylov_iterations;
     last_ncp_converged_ = r.converged;
+    last_ncp_stalled_ = r.stalled;
     delassus_.add_columns(lambda_, q);
     stats_.seconds_ncp += diffphd::detail::seconds_since(t_a);
   }
@@ -129,7 +133,10 @@ class NcpContact {
   /// true worst penetration in stats(). Returns the true penetration report.
   PenetrationReport<Dim> finish_step(const VectorX& q_flat, const VertexMatrix<Dim>& q) {
     stats_.points = static_cast<int>(points_.size());
-    if (!last_ncp_converged_ && !points_.empty()) ++stats_.ncp_unconverged;
+    if (!last_ncp_converged_ && !points_.empty()) {
+      ++stats_.ncp_unconverged;
+      if (last_ncp_stalled_) ++stats_.ncp_stalled;
+    }
     if (!points_.empty()) {
       const VectorX y = delassus_.apply_J(q_flat) - offsets_;
       const NcpInvariants inv = ncp_.invariants(points_, y, lambda_);
@@ -233,6 +240,7 @@ class NcpContact {
   NcpSolver<Dim> ncp_;
   ContactStepStats stats_;
   bool last_ncp_converged_ = true;
+  bool last_ncp_stalled_ = false;
 };
 
 }  // namespace contact

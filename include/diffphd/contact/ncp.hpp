@@ -82,7 +82,8 @@ class NcpSolver {
   /// 8413 NCP solves of the shipped contact scenes (60 steps each) no solve ran more than 16
   /// iterations and none went 8 iterations without halving; an infeasible contact set (a
   /// fuzzed scene: 196 vertices pressed between a half-space and a sphere) ran all 50 with
-  /// |phi| stuck at 0.2 m, 22.7 s a step. 0: never stop early.
+  /// |phi| stuck at 0.2 m, 22.7 s a step. 0: never stop early. The contact model sets it from
+  /// ContactOptions::ncp_stall_window before every solve.
   int stall_window = 8;
 
   /// \param W  K x K Delassus matrix (K = Dim * points.size())

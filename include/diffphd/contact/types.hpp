@@ -131,6 +131,10 @@ struct ContactOptions {
   /// Relative residual of the GMRES solves (inexact Newton; the Armijo search guards it).
   double ncp_krylov_tolerance = 1e-6;
   int ncp_krylov_max_iterations = 400;
+  /// Stop an NCP solve when its merit 1/2 |phi|^2 has not halved in this many Newton
+  /// iterations (an infeasible or degenerate contact set; counted in ncp_stalled). 0: never
+  /// stop early, run to ncp_max_iterations. See NcpSolver::stall_window for the measurements.
+  int ncp_stall_window = 8;
 
   /// Throws InputError naming the option (as the scene file's "contact" key where there is
   /// one) when a value is one the scene parser rejects: the same rules for options set in code.
@@ -165,6 +169,8 @@ struct ContactOptions {
       fail("ncp_krylov_tolerance", "must lie in (0, 1)", ncp_krylov_tolerance);
     if (ncp_krylov_max_iterations < 1)
       fail("ncp_krylov_max_iterations", "must be >= 1", ncp_krylov_max_iterations);
+    if (ncp_stall_window < 0)
+      fail("ncp_stall_window (contact.ncp_stall_window)", "must be >= 0", ncp_stall_window);
   }
 };
 
@@ -179,7 +185,11 @@ struct ContactStepStats {
   double linearised_gap = 0;      ///< min delta_n - target of the linearised rows (m)
   double cone_violation = 0;      ///< max (|lambda_f| - mu lambda_n) / (mu lambda_n), <= 0 ok
   int ncp_iterations = 0;         ///< semismooth Newton iterations summed over PD iterations
-  int ncp_unconverged = 0;        ///< PD iterations whose NCP stopped at its iteration cap
+  /// PD iterations (0 or 1 a step: the step's last) whose NCP ended unconverged, at its
+  /// iteration cap or stalled
+  int ncp_unconverged = 0;
+  /// ... of those, the NCP stopped by ContactOptions::ncp_stall_window (its merit stuck)
+  int ncp_stalled = 0;
   int ncp_ldlt = 0, ncp_lu = 0;   ///< Newton systems by Cholesky (symmetric) and LU (sliding)
   int ncp_krylov = 0;             ///< Newton systems by GMRES (large coupled sets)
   int ncp_krylov_iterations = 0;  ///< GMRES iterations summed over those systems

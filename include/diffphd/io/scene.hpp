@@ -403,6 +403,7 @@ struct ContactSpec {
   contact::ContactOptions::Delassus delassus = contact::ContactOptions{}.delassus;
   contact::ContactOptions::NcpLinear ncp_linear = contact::ContactOptions{}.ncp_linear;
   int ncp_krylov_min_rows = contact::ContactOptions{}.ncp_krylov_min_rows;  ///< >= 1
+  int ncp_stall_window = contact::ContactOptions{}.ncp_stall_window;        ///< >= 0
 };
 
 /// \brief Solver configuration. Defaults follow the paper (Sec. 4.3, 4.5, 5).
@@ -514,6 +515,7 @@ inline contact::ContactOptions contact_options(const SceneSpec& scene) {
   o.delassus = c.delassus;
   o.ncp_linear = c.ncp_linear;
   o.ncp_krylov_min_rows = c.ncp_krylov_min_rows;
+  o.ncp_stall_window = c.ncp_stall_window;
   return o;
 }
 
@@ -1312,7 +1314,7 @@ inline ContactSpec parse_contact(const Parser& p, const json& root, int bodies) 
                   {"distance", "mesh_contact", "self_contact", "friction", "restitution",
                    "ncp_tolerance", "ncp_max_iterations", "penetration_tolerance",
                    "max_redetections", "restitution_threshold", "delassus", "ncp_linear",
-                   "ncp_krylov_min_rows"});
+                   "ncp_krylov_min_rows", "ncp_stall_window"});
   c.given = true;
   c.distance = p.number(j, path, "distance", c.distance);
   p.positive(c.distance, "contact.distance");
@@ -1364,6 +1366,9 @@ inline ContactSpec parse_contact(const Parser& p, const json& root, int bodies) 
   const long kr = p.integer(j, path, "ncp_krylov_min_rows", c.ncp_krylov_min_rows);
   p.at_least(kr, 1, "contact.ncp_krylov_min_rows");
   c.ncp_krylov_min_rows = static_cast<int>(std::min<long>(kr, 1'000'000'000));
+  const long sw = p.integer(j, path, "ncp_stall_window", c.ncp_stall_window);
+  p.at_least(sw, 0, "contact.ncp_stall_window");
+  c.ncp_stall_window = static_cast<int>(std::min<long>(sw, 1'000'000'000));
   return c;
 }
 

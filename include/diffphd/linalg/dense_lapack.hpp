@@ -137,18 +137,19 @@ inline void add_product(const MatrixX& A, Eigen::Index col, int count, const dou
 }
 
 /// C.middleRows(row, D.rows()) = D * B.middleRows(row, D.rows()) for a small square D (a contact's
-/// Dim x Dim block scaling its band of rows); B and C of the same size, distinct.
-template <class Small>
-void band_product(const Small& D, const MatrixX& B, Eigen::Index row, MatrixX& C) {
+/// Dim x Dim block scaling its band of rows); B and C of the same size, distinct. D is a plain
+/// column-major matrix (fixed or dynamic size), passed to dgemm as it is stored: no copy.
+template <int Size>
+void band_product(const Eigen::Matrix<double, Size, Size>& D, const MatrixX& B, Eigen::Index row,
+                  MatrixX& C) {
   const int d = detail::dimension(D.rows()), n = detail::dimension(B.cols());
   const int ld = detail::dimension(B.rows());
   if (D.cols() != d || row < 0 || row + d > B.rows() || C.rows() != B.rows() ||
       C.cols() != B.cols() || &B == &C)
     throw std::invalid_argument("lapack::band_product: sizes");
   if (d == 0 || n == 0) return;
-  const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic> Dd = D;  // column-major, packed
   const double alpha = 1, beta = 0;
-  dgemm_("N", "N", &d, &n, &d, &alpha, Dd.data(), &d, B.data() + row, &ld, &beta, C.data() + row,
+  dgemm_("N", "N", &d, &n, &d, &alpha, D.data(), &d, B.data() + row, &ld, &beta, C.data() + row,
          &ld, 1, 1);
 }
 

@@ -37,6 +37,20 @@ inline const char* to_string(ApplyMethod m) {
   return "?";
 }
 
+/// \brief A factorization in PDSystem failed: the free-free matrix of an axis group is not
+/// (numerically) positive definite, or the backend refused it. what() names the axis group and
+/// gives the backend's message; status() is the backend's FactorStatus. A std::runtime_error, so
+/// code that caught that before still does.
+class FactorizationError : public std::runtime_error {
+ public:
+  FactorizationError(const std::string& message, FactorStatus status)
+      : std::runtime_error(message), status_(status) {}
+  FactorStatus status() const { return status_; }
+
+ private:
+  FactorStatus status_;
+};
+
 /// \brief Options of PDSystem.
 struct PDSystemOptions {
   FactorBackend backend = FactorBackend::Cholmod;
@@ -108,7 +122,7 @@ class PDSystem {
   const PDSystemOptions& options() const { return options_; }
 
   /// Assembles the reduced free-free matrices from A_s (#V by #V, symmetric) and factors them.
-  /// Throws std::runtime_error naming the axis group when a factorization fails.
+  /// Throws FactorizationError naming the axis group when a factorization fails.
   void compute(const SparseMatrix& A_s) {
     if (A_s.rows() != A_s.cols() || A_s.rows() == 0)
       throw InputError("PDSystem::compute: matrix is " + std::to_string(A_s.rows()) + " x " +
@@ -279,7 +293,7 @@ class PDSystem {
       os << "PDSystem: factorization of the free-free matrix of axes {";
       for (size_t i = 0; i < g.axes.size(); ++i) os << (i ? ", " : "") << g.axes[i];
       os << "} failed (" << to_string(g.factor.info()) << "): " << g.factor.message();
-      throw std::runtime_error(os.str());
+      throw FactorizationError(os.str(), g.factor.info());
     }
     choose_method(g);
   }

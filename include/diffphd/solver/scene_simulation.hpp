@@ -167,9 +167,16 @@ class SceneRunner {
   }
 
   /// One solver step at the current time: prepare_step(), then the solver's step().
+  /// \throws InputError naming the scene file when the solver refuses the scene at this step
+  /// (for instance a time.h so large that a free body's PD matrix is singular in rounding)
   auto step() {
     prepare_step();
-    return sim_.step();
+    try {
+      return sim_.step();
+    } catch (const InputError& e) {
+      if (!e.file().empty()) throw;
+      throw InputError(e.message(), scene_.file);
+    }
   }
 
   /// What step() does before the solver's step(), at the solver's current time t: drivers due

@@ -10,6 +10,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <iomanip>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
@@ -473,10 +474,10 @@ class Solver {
     // The factor is computed here. Without Dirichlet conditions A is SPD only through its mass
     // term; with a huge h (quasi-static use) that term is below rounding and the factorization
     // of the unconstrained A can fail. Then the factor is computed at the first step, with the
-    // Dirichlet set given by then (a failure there throws).
+    // Dirichlet set given by then (a failure there is an InputError, see singular_step_error).
     try {
       factor();
-    } catch (const std::runtime_error&) {
+    } catch (const FactorizationError&) {
       stale_ = true;
     }
   }
@@ -1058,7 +1059,43 @@ class Solver {
   }
 
   /// Dirichlet mask at the end of the coming step and refactor if anything changed.
+  /// \throws InputError when the factorization fails because the mass term is lost in rounding
+  /// (see singular_step_error); the factor stays stale, so the next step tries again.
   void prepare_system() {
+    try {
+      prepare_system_unchecked();
+    } catch (const FactorizationError& e) {
+      stale_ = true;
+      singular_step_error(e);
+    }
+  }
+
+  /// Explains a failed factorization of A_s = (1 + alpha h) M / h^2 + stiffness. The stiffness
+  /// part is only semidefinite on a body with no fixed vertex (rigid motions cost nothing), so A
+  /// is positive definite there only through its mass term; when h is so large that
+  /// m_v (1 + alpha h) / h^2 is below the rounding of the stiffness diagonal, CHOLMOD meets a
+  /// zero or negative pivot. Measured by rho = min_v mass term / max_v A_vv: at or below
+  /// sqrt(eps) this is an InputError naming h and the figures; above, e is rethrown (a failure
+  /// of another kind).
+  [[noreturn]] void singular_step_error(const FactorizationError& e) const {
+    const double h = options_.h;
+    const SparseMatrix A = assemble_pd_matrix<Dim>(mesh_, mass_, w_, beta_, h, options_.alpha);
+    const double scale = (1.0 + options_.alpha * h) / (h * h);
+    const double largest = A.diagonal().cwiseAbs().maxCoeff();
+    const double smallest_mass = scale * mass_.minCoeff();
+    const double rho = smallest_mass / largest;
+    if (!(rho <= std::sqrt(std::numeric_limits<double>::epsilon()))) throw e;
+    std::ostringstream os;
+    os << std::setprecision(3) << "Solver: time step h = " << h
+       << " s is too large for this mesh: its mass term m (1 + alpha h) / h^2 is " << smallest_mass
+       << " at its smallest, " << rho << " times the largest diagonal entry of the PD matrix ("
+       << largest
+       << "), below its rounding, so a body without fixed vertices has a singular matrix ("
+       << e.what() << "). Reduce h, or fix vertices of every body";
+    throw InputError(os.str());
+  }
+
+  void prepare_system_unchecked() {
     const double t1 = t_ + options_.h;
     const FixedMask mask = bc_.mask(t1);
     if (stale_) {
