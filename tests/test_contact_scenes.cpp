@@ -232,6 +232,23 @@ TEST_CASE("time.h = 2.6e60 s on free bodies: an InputError naming the scene and 
   }
 }
 
+TEST_CASE("time.h = 1e-200 s: the set-up's InputError names the scene file", "[contact][scene]") {
+  // The PD matrix's mass term overflows; the Solver's error is raised in SceneRunner's
+  // constructor, which adds the scene file.
+  const std::string file =
+      std::string(DIFFPHD_SOURCE_DIR) + "/tests/data/scenes/fuzz_huge_h_factor.json";
+  io::SceneSpec scene = io::load_scene(file);
+  scene.h = 1e-200;
+  try {
+    ContactScene sim(scene);
+    FAIL("set-up at time.h = 1e-200 s returned");
+  } catch (const InputError& e) {
+    INFO(e.what());
+    CHECK(e.file() == file);
+    CHECK(e.message().find("not finite at time step h = 1e-200 s") != std::string::npos);
+  }
+}
+
 TEST_CASE("a contact scene on a contact-free SceneSimulation is an error, not a silent run",
           "[contact][scene]") {
   const io::SceneSpec scene = io::load_scene(kScenes + "ball_drop.json");

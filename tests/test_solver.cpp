@@ -466,6 +466,38 @@ TEST_CASE("Solver: an h that loses the mass term in rounding is an InputError na
   CHECK(held.positions().allFinite());
 }
 
+TEST_CASE("Solver: an h or alpha that makes the PD matrix overflow is an InputError naming them",
+          "[solver]") {
+  // (1 + alpha h) / h^2 is inf for h = 1e-200 and inf / inf for h = alpha = 1e300; CHOLMOD
+  // refused the matrix ("non-finite entry") and its std::runtime_error escaped the constructor.
+  TwistBar scene(1.0);
+  auto message = [&](double h, double alpha) -> std::string {
+    SolverOptions o;
+    o.h = h;
+    o.alpha = alpha;
+    try {
+      Solver<3, CoroVol> sim(scene.mesh, scene.materials, o);
+      sim.fix_vertices(scene.left);
+      sim.step();
+    } catch (const InputError& e) {
+      return e.what();
+    }
+    return "no error";
+  };
+  const std::string tiny = message(1e-200, 0);
+  INFO(tiny);
+  CHECK(tiny.find("not finite at time step h = 1e-200 s, alpha = 0 1/s") != std::string::npos);
+  CHECK(tiny.find("mass term m (1 + alpha h) / h^2 is inf") != std::string::npos);
+  const std::string damped = message(1e300, 1e300);
+  INFO(damped);
+  CHECK(damped.find("h = 1e+300 s, alpha = 1e+300 1/s") != std::string::npos);
+  CHECK(damped.find("alpha h = inf") != std::string::npos);
+  // Huge h alone: the mass term is 0, not an overflow; held at one end it is quasi-static use.
+  CHECK(message(1e300, 0) == "no error");
+  // A small h that does not overflow still works.
+  CHECK(message(1e-9, 0) == "no error");
+}
+
 TEST_CASE("Solver: 2D triangles", "[solver]") {
   SimplicialMesh<2> mesh = make_rectangle(Vec<2>(0, 0), Vec<2>(1, 0.2), Eigen::Vector2i(10, 2));
   MaterialField mat(mesh.num_elements(), Material{1e5, 0.3, 1000});

@@ -130,8 +130,10 @@ class SceneRunner {
   /// True when the solver has fibre (muscle) terms, i.e. set_group_activations() exists.
   static constexpr bool kHasMuscles = detail::sim_has_fibre_terms<Sim>::value;
 
+  /// \throws InputError naming the scene file on a scene the builders or the solver refuse
+  /// (an error without a file, from the solver, gets the scene's)
   template <class Options>
-  SceneRunner(const io::SceneSpec& scene, const Options& options)
+  SceneRunner(const io::SceneSpec& scene, const Options& options) try
       : scene_(checked_dimension(scene)),
         built_(io::build_multibody_mesh<Dim>(scene_)),
         materials_(io::build_materials<Dim>(scene_, built_.mesh, built_.region,
@@ -164,6 +166,11 @@ class SceneRunner {
     } else {
       muscles_.group.assign(mesh().num_elements(), -1);
     }
+  } catch (const InputError& e) {
+    // A constructor's function-try-block: the members are gone here; only the parameters are
+    // used. Leaving the handler would rethrow e.
+    if (!e.file().empty()) throw;
+    throw InputError(e.message(), scene.file);
   }
 
   /// One solver step at the current time: prepare_step(), then the solver's step().

@@ -475,6 +475,7 @@ class Solver {
     // term; with a huge h (quasi-static use) that term is below rounding and the factorization
     // of the unconstrained A can fail. Then the factor is computed at the first step, with the
     // Dirichlet set given by then (a failure there is an InputError, see singular_step_error).
+    // A matrix that is not finite (h or alpha out of range) is an InputError here.
     try {
       factor();
     } catch (const FactorizationError&) {
@@ -1054,8 +1055,33 @@ class Solver {
       B.setFromTriplets(trips.begin(), trips.end());
       A += B;
     }
+    if (!Eigen::Map<const VectorX>(A.valuePtr(), A.nonZeros()).allFinite())
+      non_finite_matrix_error();
     system_.compute(A);
     stale_ = false;
+  }
+
+  /// The masses and weights are finite (assemble_pd_matrix checks them), so a non-finite A
+  /// comes from h or alpha out of the range of doubles: (1 + alpha h) / h^2 overflows for
+  /// h < 1e-154, and is inf / inf for a huge h with a huge alpha; or from the stiffness part
+  /// (weight x volume x shape-gradient products) overflowing. CHOLMOD would refuse it with
+  /// "non-finite entry"; this names the cause instead.
+  [[noreturn]] void non_finite_matrix_error() const {
+    const double h = options_.h, alpha = options_.alpha;
+    const double scale = (1.0 + alpha * h) / (h * h);
+    const double mass_term = scale * mass_.maxCoeff();
+    std::ostringstream os;
+    os << std::setprecision(3) << "Solver: the PD matrix is not finite at time step h = " << h
+       << " s, alpha = " << alpha << " 1/s: ";
+    if (!std::isfinite(mass_term))
+      os << "its mass term m (1 + alpha h) / h^2 is " << mass_term
+         << " at its largest (h^2 = " << h * h << ", alpha h = " << alpha * h
+         << "). Choose h and alpha within the range of doubles (h above 1e-150 s)";
+    else
+      os << "its stiffness part (weight x volume x shape-gradient products) overflows, with "
+            "weights up to "
+         << w_.maxCoeff() << ". Reduce the Young's moduli or the fibre stiffness";
+    throw InputError(os.str());
   }
 
   /// Dirichlet mask at the end of the coming step and refactor if anything changed.
